@@ -1,0 +1,314 @@
+"""Stability of measured orbits, and the Floquet multipliers of the *controlled* system.
+
+Two questions, two tools:
+
+1. **Is the measured orbit stable without control?** Answered as an experimentalist does
+   (thesis §3.3.3.3, Fig. 3.18): after convergence, nudge the orbit (a slightly larger
+   target for a few periods), switch the controller off and watch. If the deviation from
+   the converged amplitude decays the orbit is stable; if it grows (the response leaves
+   towards the equilibrium or another attractor) it is unstable.
+   :func:`switch_off_test`.
+2. **Does a controller stabilise an orbit?** The controlled system ``ẋ = f(x) + e u(x)``
+   with the non-invasive target expressed as a function of the state is itself a
+   System-like vector field (autonomous for PP-CBC); its Floquet multipliers at the
+   orbit must lie inside the unit circle, apart from the trivial one (thesis Fig. 3.9,
+   eq. 3.26). :func:`controlled_floquet` computes them with
+   :func:`bifid.continuation.floquet_multipliers`.
+"""
+
+from __future__ import annotations
+
+import functools
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import jax.numpy as jnp
+import numpy as np
+
+from bifid.cbc._controllers import AbstractTarget, PDController, PolarTarget
+from bifid.cbc._fourier import polar_project
+from bifid.cbc._rig import AbstractRig, Measurement
+from bifid.errors import BifidInputError
+from bifid.systems import System
+
+__all__ = [
+    "StabilityResult",
+    "controlled_floquet",
+    "controlled_rhs",
+    "orbit_polar_target",
+    "period_amplitudes",
+    "switch_off_test",
+]
+
+
+# ------------------------------------------------------------------------ switch-off test
+@dataclass
+class StabilityResult:
+    """Outcome of a switch-off test.
+
+    Attributes
+    ----------
+    stable : bool or None
+        None when the test could not decide (deviation neither grew nor decayed beyond
+        noise).
+    growth : float
+        Estimated growth factor of the amplitude deviation per period (≈ the dominant
+        non-trivial Floquet multiplier's modulus).
+    deviations : ndarray
+        Relative amplitude deviation per period after switch-off.
+    """
+
+    stable: bool | None
+    growth: float
+    deviations: np.ndarray = field(default_factory=lambda: np.zeros(0))
+
+
+def period_amplitudes(x: np.ndarray, omega: float, sample_rate: float) -> np.ndarray:
+    """First-harmonic amplitude of ``x`` over each successive whole period.
+
+    Least-squares fit of ``c + a cos ωt + b sin ωt`` per period (robust to noise).
+    """
+    x = np.asarray(x, dtype=float)
+    per = 2.0 * math.pi / omega * sample_rate
+    m = int(x.shape[0] // per)
+    out = np.empty(m)
+    for j in range(m):
+        lo, hi = int(round(j * per)), int(round((j + 1) * per))
+        t = np.arange(hi - lo) / sample_rate
+        B = np.stack([np.ones_like(t), np.cos(omega * t), np.sin(omega * t)], axis=1)
+        coef, *_ = np.linalg.lstsq(B, x[lo:hi], rcond=None)
+        out[j] = math.hypot(coef[1], coef[2])
+    return out
+
+
+def switch_off_test(
+    rig: AbstractRig,
+    signal: str,
+    amplitude: float,
+    omega: float,
+    *,
+    controller: PDController,
+    nudged_target: AbstractTarget,
+    restore_target: AbstractTarget | None,
+    nudge_periods: float = 3.0,
+    watch_periods: float = 15.0,
+    threshold: float = 1.5,
+    escape: float = 0.25,
+) -> tuple[StabilityResult, Measurement]:
+    """Label an orbit stable/unstable by switching the controller off (Fig. 3.18).
+
+    The controller first tracks ``nudged_target`` (the converged target moved slightly
+    off the orbit, e.g. a 5 % smaller amplitude: inwards, towards the equilibrium, so an
+    unstable orbit of a subcritical branch falls back instead of escaping) for
+    ``nudge_periods``; then it is switched off and ``signal`` is watched for up to
+    ``watch_periods``, two periods at a time, stopping early once the deviation exceeds
+    ``escape``. With ``d_j`` the deviation of the
+    per-period first-harmonic amplitude from ``amplitude`` (the converged orbit's), the
+    orbit is
+
+    - unstable if ``|d|`` grows by more than ``threshold`` (least-squares growth rate of
+      ``log|d_j|``), or the final deviation exceeds ``escape``,
+    - stable if it decays by the same factor,
+    - undecided otherwise.
+
+    Afterwards the controller is switched back on with ``restore_target`` (when given).
+
+    Returns
+    -------
+    StabilityResult, Measurement
+        The label and the last record after switch-off.
+    """
+    period = 2.0 * math.pi / omega
+    rig.set_controller(controller, nudged_target)
+    rig.run(nudge_periods * period)
+    rig.set_controller(None)
+    # watch period by period; stop as soon as the response has clearly left
+    records: list[Measurement] = []
+    amps = np.zeros(0)
+    chunk = 2
+    watched = 0
+    while watched < watch_periods:
+        k = int(min(chunk, math.ceil(watch_periods - watched)))
+        m = rig.run(k * period + 1.0 / rig.sample_rate)
+        records.append(m)
+        watched += k
+        x = np.concatenate([r.signal(signal) for r in records])
+        amps = period_amplitudes(x, omega, m.sample_rate)
+        if amps.size and abs(amps[-1] - amplitude) > escape * amplitude:
+            break
+    if restore_target is not None:
+        rig.set_controller(controller, restore_target)
+    d = (amps - amplitude) / amplitude
+    m = records[-1]
+    if d.shape[0] < 2:
+        return StabilityResult(None, math.nan, d), m
+    ad = np.abs(d)
+    floor = 1e-6
+    logd = np.log(np.maximum(ad, floor))
+    j = np.arange(d.shape[0])
+    slope = float(np.polyfit(j, logd, 1)[0])
+    growth = math.exp(slope)
+    total = math.exp(slope * (d.shape[0] - 1))
+    if ad[-1] > escape or (total > threshold and ad[-1] > ad[0]):
+        stable: bool | None = False
+    elif total < 1.0 / threshold and ad[-1] < ad[0]:
+        stable = True
+    else:
+        stable = None
+    return StabilityResult(stable, growth, d), m
+
+
+# -------------------------------------------------------------- controlled Floquet analysis
+_RHS_CACHE: dict[tuple, Callable] = {}
+
+
+def _state_signal(system: System, name: str) -> tuple[int, bool]:
+    """A controller signal as (state index, is_derivative)."""
+    if name in system.states:
+        return system.state_index(name), False
+    if name.endswith("_dot") and name[:-4] in system.states:
+        return system.state_index(name[:-4]), True
+    raise BifidInputError(
+        f"signal {name!r} is neither a state of {system.name!r} nor '<state>_dot'."
+    )
+
+
+def controlled_rhs(system: System, controller: PDController, target: AbstractTarget
+                   ) -> tuple[Callable, int]:
+    """The closed-loop vector field with continuous (unsampled) control.
+
+    .. math::
+
+        \\dot x = f(x, p) + b(p)\\,γ\\cos(Ωt - ψ) + e(p)\\bigl(k_p(x_1^*-x_1)
+                  + k_d(x_2^*-x_2)\\bigr),
+
+    with ``x1, x2`` read from the state (a ``"<state>_dot"`` signal is the component of
+    ``f + b γ cos`` along that state). The returned ``rhs(x, t, q)`` takes the augmented
+    parameter vector ``q = [p, kp, kd, γ, Ω, ψ, target.vector()]`` (see
+    :func:`augmented_params`), so one compiled function serves every gain and target.
+
+    Returns
+    -------
+    rhs : callable
+    n_params : int
+        Length of ``p`` inside ``q``.
+    """
+    s1 = _state_signal(system, controller.x1)
+    s2 = _state_signal(system, controller.x2)
+    key = (system.name, id(system.field), s1, s2, target.static_key)
+    if key not in _RHS_CACHE:
+        n_p = len(system.parameters)
+        ref = type(target).reference
+        bdir = system.forcing_direction or system.input_direction
+        edir = system.input_direction
+        f = system.field
+
+        def rhs(x, t, q):
+            p = q[:n_p]
+            kp, kd, gamma, Om, psi = q[n_p], q[n_p + 1], q[n_p + 2], q[n_p + 3], q[n_p + 4]
+            tv = q[n_p + 5 :]
+            force = gamma * jnp.cos(Om * t - psi)
+            fx = f(x, p) + bdir(p) * force
+            x1 = fx[s1[0]] if s1[1] else x[s1[0]]
+            x2 = fx[s2[0]] if s2[1] else x[s2[0]]
+            r1, r2 = ref(tv, x1, x2, Om * t, Om)
+            u = kp * (r1 - x1) + kd * (r2 - x2)
+            return fx + edir(p) * u
+
+        _RHS_CACHE[key] = rhs
+    return _RHS_CACHE[key], len(system.parameters)
+
+
+def augmented_params(
+    p: np.ndarray, controller: PDController, target: AbstractTarget,
+    forcing: tuple[float, float, float] | None = None,
+) -> np.ndarray:
+    """``q = [p, kp, kd, γ, Ω, ψ, target.vector()]`` for :func:`controlled_rhs`."""
+    g, Om, psi = forcing if forcing is not None else (0.0, 0.0, 0.0)
+    return np.concatenate([np.asarray(p, dtype=float),
+                           [controller.kp, controller.kd, g, Om, psi], target.vector()])
+
+
+def orbit_polar_target(
+    orbit: np.ndarray, system: System, x1: str, x2: str, n_harmonics: int,
+    scale: tuple[float, float] = (1.0, 1.0), origin: tuple[float, float] = (0.0, 0.0),
+    p: np.ndarray | None = None, n_fine: int = 4096,
+) -> PolarTarget:
+    """The polar target (eq. 3.22) that is non-invasive on a known orbit.
+
+    Parameters
+    ----------
+    orbit : array of shape (M, n)
+        States on ``t_k = T k / M`` (one period).
+    x1, x2 : str
+        Controller signals (states or ``"<state>_dot"``, the latter from ``system.field``).
+    """
+    orbit = np.asarray(orbit, dtype=float)
+    M = orbit.shape[0]
+    fine = np.fft.irfft(np.fft.rfft(orbit, axis=0), n=n_fine, axis=0) * (n_fine / M)
+    pv = np.asarray(system.param_vector() if p is None else p)
+
+    def sig(name):
+        i, is_d = _state_signal(system, name)
+        if not is_d:
+            return fine[:, i]
+        fx = np.asarray(jax_vmap_field(system)(jnp.asarray(fine), jnp.asarray(pv)))
+        return fx[:, i]
+
+    a, b = sig(x1), sig(x2)
+    xi1 = (a - origin[0]) / scale[0]
+    xi2 = (b - origin[1]) / scale[1]
+    coef = polar_project(np.arctan2(xi2, xi1), np.hypot(xi1, xi2), n_harmonics)
+    return PolarTarget(coefficients=coef, scale=scale, origin=origin)
+
+
+@functools.lru_cache(maxsize=16)
+def _vmapped(field: Callable) -> Callable:
+    import jax
+
+    return jax.jit(jax.vmap(field, in_axes=(0, None)))
+
+
+def jax_vmap_field(system: System) -> Callable:
+    """``system.field`` vectorised over states (compiled once per field)."""
+    return _vmapped(system.field)
+
+
+def controlled_floquet(
+    system: System,
+    controller: PDController,
+    target: AbstractTarget,
+    orbit: np.ndarray,
+    period: float,
+    p: np.ndarray,
+    forcing: tuple[float, float, float] | None = None,
+) -> tuple[np.ndarray, float]:
+    """Floquet multipliers of the controlled system on ``orbit`` (thesis eq. 3.26).
+
+    Parameters
+    ----------
+    orbit : array of shape (M, n)
+        The (non-invasively controlled) orbit on ``t_k = T k / M``; for forced systems
+        ``t = 0`` is the phase origin of the force ``γ cos(Ωt - ψ)``.
+    period : float
+    p : array
+        System parameters.
+    forcing : (γ, Ω, ψ), optional
+        Forced systems: the excitation (the system's own F, Omega are not used).
+
+    Returns
+    -------
+    multipliers : complex ndarray of shape (n,), by decreasing modulus
+    floquet_max : float
+        Largest modulus, excluding the trivial multiplier for autonomous systems.
+    """
+    from bifid.continuation import floquet_multipliers
+
+    rhs, _ = controlled_rhs(system, controller, target)
+    q = augmented_params(p, controller, target, forcing)
+    mults, _, fmax = floquet_multipliers(
+        rhs, np.asarray(orbit, dtype=float)[None], np.array([float(period)]), q[None],
+        autonomous=forcing is None,
+    )
+    return mults[0], float(fmax[0])

@@ -1,0 +1,68 @@
+"""Numerical continuation: equilibria, periodic orbits, forced responses.
+
+Problem / algorithm / options are kept apart: a :class:`~bifid.systems.System` is the
+problem, the drivers below pick the zero problem (equilibria, Fourier collocation of
+orbits or forced responses), :func:`palc` is the algorithm, and
+:class:`ContinuationOptions` holds the numbers. Every driver returns a :class:`Branch`
+carrying its special points.
+"""
+
+from bifid.continuation._collocation import (
+    continue_from_hopf,
+    hopf_orbits,
+    orbit_problem,
+    periodic_orbits,
+    resample_orbit,
+)
+from bifid.continuation._equilibria import (
+    equilibria,
+    equilibrium_problem,
+    first_lyapunov_coefficient,
+    locate_hopf,
+)
+from bifid.continuation._floquet import floquet_multipliers, monodromy
+from bifid.continuation._forced import backbone, forced_problem, frc, scurve
+from bifid.continuation._fourier import (
+    evaluate_fourier,
+    first_harmonic,
+    fourier_coefficients,
+    fourier_differentiation_matrix,
+    fourier_grid,
+    max_abs,
+    spectral_tail,
+)
+from bifid.continuation._options import Branch, ContinuationOptions, SpecialPoint
+from bifid.continuation._palc import PalcResult, ZeroProblem, correct, palc, tangent_at
+
+__all__ = [
+    "Branch",
+    "ContinuationOptions",
+    "PalcResult",
+    "SpecialPoint",
+    "ZeroProblem",
+    "backbone",
+    "forced_problem",
+    "frc",
+    "scurve",
+    "continue_from_hopf",
+    "correct",
+    "equilibria",
+    "equilibrium_problem",
+    "evaluate_fourier",
+    "first_harmonic",
+    "first_lyapunov_coefficient",
+    "floquet_multipliers",
+    "fourier_coefficients",
+    "fourier_differentiation_matrix",
+    "fourier_grid",
+    "hopf_orbits",
+    "locate_hopf",
+    "max_abs",
+    "monodromy",
+    "orbit_problem",
+    "palc",
+    "periodic_orbits",
+    "resample_orbit",
+    "spectral_tail",
+    "tangent_at",
+]

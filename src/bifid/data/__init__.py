@@ -1,0 +1,91 @@
+"""Datasets of measured or computed periodic responses, and importers of real data.
+
+Two dataset kinds, stored as netCDF-4 (xarray + h5netcdf), schema in
+``docs/data-formats.md``:
+
+- ``"lco"``: limit cycles of an autonomous system at values of one parameter
+  (:class:`LCORecord`, :func:`lco_dataset`, :func:`lco_records`);
+- ``"forced"``: steady responses to harmonic forcing (:class:`ForcedRecord`,
+  :func:`forced_dataset`, :func:`forced_records`).
+
+:func:`save_dataset` writes atomically, :func:`load_dataset` validates everything and
+raises :class:`~bifid.errors.BifidInputError` on any malformed file, :func:`append_record`
+adds one record at a time (for CBC campaigns).
+
+Importers: :func:`import_files` (what ``bifid import`` runs: format detection, MATLAB
+files of the flutter rig and the electromagnetic oscillator, CSV in bifid's schema);
+loaders of the files that are not limit-cycle records: :func:`load_free_decay`,
+:func:`load_open_loop` / :func:`open_loop_summary`, :func:`load_ulco_amplitudes`,
+:func:`load_thesis_curves`.
+"""
+
+from bifid.data._csv import ThesisCurve, load_thesis_curves, read_csv_dataset, write_csv
+from bifid.data._import import FORMATS, detect_format, expand_paths, import_files
+from bifid.data._matlab import (
+    FreeDecay,
+    OpenLoopRun,
+    ULCOAmplitudes,
+    em_dataset,
+    flutter_cbc_dataset,
+    load_free_decay,
+    load_open_loop,
+    load_ulco_amplitudes,
+    open_loop_dataset,
+    open_loop_summary,
+    read_em_curve,
+    read_flutter_cbc,
+)
+from bifid.data._netcdf import (
+    append_record,
+    combine_datasets,
+    forced_dataset,
+    forced_records,
+    lco_dataset,
+    lco_records,
+    load_dataset,
+    save_dataset,
+)
+from bifid.data._records import ForcedRecord, LCORecord, first_harmonic, phase_lag
+from bifid.data._signal import estimate_frequency, fill_gaps, fourier_fit, periodic_max_abs
+from bifid.data._validate import KINDS, validate_dataset
+
+__all__ = [
+    "FORMATS",
+    "KINDS",
+    "ForcedRecord",
+    "FreeDecay",
+    "LCORecord",
+    "OpenLoopRun",
+    "ThesisCurve",
+    "ULCOAmplitudes",
+    "append_record",
+    "combine_datasets",
+    "detect_format",
+    "em_dataset",
+    "estimate_frequency",
+    "expand_paths",
+    "fill_gaps",
+    "first_harmonic",
+    "flutter_cbc_dataset",
+    "forced_dataset",
+    "forced_records",
+    "fourier_fit",
+    "import_files",
+    "lco_dataset",
+    "lco_records",
+    "load_dataset",
+    "load_free_decay",
+    "load_open_loop",
+    "load_thesis_curves",
+    "load_ulco_amplitudes",
+    "open_loop_dataset",
+    "open_loop_summary",
+    "periodic_max_abs",
+    "phase_lag",
+    "read_csv_dataset",
+    "read_em_curve",
+    "read_flutter_cbc",
+    "save_dataset",
+    "validate_dataset",
+    "write_csv",
+]

@@ -1,0 +1,129 @@
+r"""Polar Fourier representation of closed planar curves (thesis eqs. 5.4–5.6).
+
+A closed curve :math:`(z_1, z_2)` is described about its **area centroid**
+:math:`\mathbf c` by the radius as a function of the polar angle,
+
+.. math::
+
+    R = \lVert \mathbf z - \mathbf c\rVert,\quad \theta = \operatorname{atan2}(z_2 - c_2, z_1 - c_1),
+    \quad R(\theta) = a_0 + \sum_{k=1}^{n_h} a_k\cos k\theta + b_k \sin k\theta ,
+
+with the coefficients computed in the least-squares sense (the pseudo-inverse variant of
+eq. 5.6). The thesis uses one common origin for all curves; bifid uses each curve's own area
+centroid (a purely geometric point, insensitive to how fast the curve is traversed and to
+zero-mean noise) and matches the centroids separately, so that small orbits whose centre drifts
+with the parameter (as on the real rig) still have their origin inside.
+"""
+
+from __future__ import annotations
+
+import jax.numpy as jnp
+import numpy as np
+
+Array = jnp.ndarray
+
+
+def fourier_design(theta: Array, n_harmonics: int) -> Array:
+    """Rows ``[1, cos θ, …, cos nθ, sin θ, …, sin nθ]`` (eq. 5.5), shape ``(len(θ), 2n+1)``."""
+    k = jnp.arange(1, n_harmonics + 1, dtype=jnp.float64)
+    kt = theta[:, None] * k[None, :]
+    return jnp.concatenate([jnp.ones_like(theta)[:, None], jnp.cos(kt), jnp.sin(kt)], axis=1)
+
+
+def parseval_weights(n_harmonics: int) -> Array:
+    r"""Weights making :math:`\sum_j w_j \Delta\Phi_j^2 = \frac1{2\pi}\int_0^{2\pi}\Delta R^2\,d\theta`."""
+    return jnp.concatenate([jnp.ones(1), 0.5 * jnp.ones(2 * n_harmonics)])
+
+
+def polygon_centroid(pts: Array) -> Array:
+    r"""Area centroid of the closed polygon ``pts`` (shape ``(K, 2)``), either orientation.
+
+    .. math::
+
+        A = \tfrac12\sum_k (x_k y_{k+1} - x_{k+1} y_k),\qquad
+        \mathbf c = \frac{1}{6A}\sum_k (\mathbf p_k + \mathbf p_{k+1})(x_k y_{k+1} - x_{k+1} y_k).
+
+    A polygon traced ``n`` times has ``n`` times the area and moment, so the ratio is the same.
+    """
+    nxt = jnp.roll(pts, -1, axis=0)
+    cross = pts[:, 0] * nxt[:, 1] - nxt[:, 0] * pts[:, 1]
+    area = 0.5 * jnp.sum(cross)
+    return jnp.sum((pts + nxt) * cross[:, None], axis=0) / (6.0 * area)
+
+
+def polar_coefficients(pts: Array, centre: Array, n_harmonics: int, ridge: float = 1e-10) -> Array:
+    r"""Least-squares Fourier coefficients :math:`\Phi(R)` of :math:`R(\theta)` about ``centre``.
+
+    Parameters
+    ----------
+    pts : array of shape (K, 2)
+        Points on the curve (any number of turns, any spacing).
+    centre : array of shape (2,)
+    n_harmonics : int
+
+    Returns
+    -------
+    array of shape (2 * n_harmonics + 1,)
+        ``[a0, a1..an, b1..bn]``.
+    """
+    d = pts - centre[None, :]
+    theta = jnp.arctan2(d[:, 1], d[:, 0])
+    R = jnp.sqrt(jnp.sum(d**2, axis=1))
+    B = fourier_design(theta, n_harmonics)
+    G = B.T @ B / B.shape[0]
+    rhs = B.T @ R / B.shape[0]
+    return jnp.linalg.solve(G + ridge * jnp.eye(G.shape[0]), rhs)
+
+
+def polar_mismatch(pts: Array, centre: Array, coef: Array, n_harmonics: int) -> Array:
+    r"""Mean-square polar distance between the curve ``pts`` and the series ``coef``.
+
+    .. math::
+
+        \frac{1}{2\pi}\int_0^{2\pi} (\hat R(\theta) - R(\theta))^2\,d\theta
+        \approx \frac{1}{2\pi}\sum_k \lvert\Delta\hat\theta_k\rvert
+            \bigl(\hat R_k - R(\hat\theta_k)\bigr)^2 ,
+
+    with :math:`(\hat\theta_k, \hat R_k)` the polar coordinates of ``pts`` about ``centre``
+    and :math:`\Delta\hat\theta_k` half the angle between its neighbours. By Parseval this is
+    :math:`\lVert\Phi(R) - \Phi(\hat R)\rVert^2` of eq. 5.7 (Parseval weights) whenever
+    :math:`\hat R` has no harmonics above ``n_harmonics``; evaluating it by quadrature on the
+    model's points avoids a least-squares projection (eq. 5.6) per orbit and iteration, and
+    additionally penalises harmonics of :math:`\hat R` beyond the truncation.
+    """
+    d = pts - centre[None, :]
+    theta = jnp.arctan2(d[:, 1], d[:, 0])
+    R_hat = jnp.sqrt(jnp.sum(d**2, axis=1))
+    R = fourier_design(theta, n_harmonics) @ coef
+    dth = jnp.roll(theta, -1) - jnp.roll(theta, 1)
+    dth = jnp.abs(jnp.mod(dth + jnp.pi, 2 * jnp.pi) - jnp.pi) / 2
+    return jnp.sum(dth * (R_hat - R) ** 2) / (2 * jnp.pi)
+
+
+def unwrapped_angle(pts: np.ndarray, centre: np.ndarray) -> np.ndarray:
+    """Continuous polar angle of ``pts`` about ``centre`` (numpy)."""
+    d = pts - centre[None, :]
+    return np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
+
+
+def whole_periods(pts: np.ndarray, centre: np.ndarray) -> tuple[int, int, float]:
+    """Number of samples spanning whole turns about ``centre``, the turns and the direction.
+
+    Returns
+    -------
+    n_samples : int
+        Samples ``pts[:n_samples]`` cover ``turns`` whole revolutions (0 when less than one).
+    turns : int
+    direction : float
+        +1 counter-clockwise, -1 clockwise.
+    """
+    ang = unwrapped_angle(pts, centre)
+    travel = ang - ang[0]
+    direction = 1.0 if travel[-1] >= 0 else -1.0
+    travel = direction * travel
+    turns = int(np.floor(travel[-1] / (2 * np.pi)))
+    if turns < 1:
+        return 0, 0, direction
+    # first sample at or beyond `turns` revolutions (include it to close the curve)
+    idx = int(np.searchsorted(travel, turns * 2 * np.pi))
+    return min(idx + 1, len(pts)), turns, direction

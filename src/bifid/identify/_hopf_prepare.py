@@ -1,0 +1,142 @@
+"""From validated records to the arrays the hybrid Hopf model trains on.
+
+Per record: the signals are scaled by a per-signal scale (their RMS over all records), the
+plane :math:`(z_1, z_2)` is truncated to whole periods, and its area centroid, polar Fourier
+coefficients (eqs. 5.4–5.6), covariance, mean radius, angular frequency (slope of the
+unwrapped polar angle) and direction of rotation are computed. The parameter is normalised,
+:math:`\\tilde\\mu = (\\mu - \\mu_c)/\\mu_s`.
+"""
+
+from __future__ import annotations
+
+import warnings
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+import numpy as np
+
+from bifid.errors import BifidInputError, ConvergenceWarning
+from bifid.identify._hopf_data import LCOData
+from bifid.identify._hopf_polar import (
+    polar_coefficients,
+    polygon_centroid,
+    unwrapped_angle,
+    whole_periods,
+)
+
+
+@dataclass
+class Prepared:
+    """Arrays derived from :class:`LCOData` (see module docstring)."""
+
+    mu_c: float
+    mu_s: float
+    z_scale: np.ndarray  # (m,)
+    plane: tuple[int, int]
+    mu_t: np.ndarray  # (n,)
+    branch: np.ndarray  # (n,)
+    coef: np.ndarray  # (n, 2nh+1)
+    centre: np.ndarray  # (n, 2)
+    size: np.ndarray  # (n,) mean polar radius a0
+    cov: np.ndarray  # (n, 2, 2)
+    omega: np.ndarray  # (n,) rad/s, > 0
+    direction: float  # +1 counter-clockwise, -1 clockwise in the plane
+    zn: list[np.ndarray]  # normalised signals, whole periods only
+    times: list[np.ndarray]  # sample times of zn [s]
+
+    def arrays(self) -> dict[str, jnp.ndarray]:
+        """The per-orbit arrays of the map stage (JAX)."""
+        return {
+            "mu_t": jnp.asarray(self.mu_t, dtype=jnp.float64),
+            "branch": jnp.asarray(self.branch, dtype=jnp.float64),
+            "coef": jnp.asarray(self.coef, dtype=jnp.float64),
+            "centre": jnp.asarray(self.centre, dtype=jnp.float64),
+        }
+
+
+def prepare(
+    data: LCOData,
+    plane: tuple[int, int],
+    n_harmonics: int,
+    *,
+    mu_c: float | None = None,
+    mu_s: float | None = None,
+    z_scale: np.ndarray | None = None,
+) -> Prepared:
+    """Compute :class:`Prepared` (normalisation constants may be imposed, e.g. for CV folds).
+
+    Raises
+    ------
+    BifidInputError
+        If fewer than two distinct parameter values are given, a record holds less than one
+        period in the plane, or records rotate in opposite directions.
+    """
+    i1, i2 = plane
+    m = len(data.signal_names)
+    if not (0 <= i1 < m and 0 <= i2 < m and i1 != i2):
+        raise BifidInputError(f"plane must be two different signal indices < {m}, got {plane}.")
+    params = data.params
+    if len(np.unique(params)) < 2:
+        raise BifidInputError(
+            "The hybrid Hopf model needs records at two or more parameter values; got "
+            f"{sorted(set(params.tolist()))}."
+        )
+    if mu_c is None:
+        mu_c = float(0.5 * (params.max() + params.min()))
+    if mu_s is None:
+        mu_s = float(0.5 * (params.max() - params.min()))
+    if z_scale is None:
+        allsig = np.concatenate(data.signals, axis=0)
+        z_scale = np.sqrt(np.mean(allsig**2, axis=0))
+        z_scale = np.where(z_scale > 0, z_scale, 1.0)
+    coefs, centres, sizes, covs, omegas, dirs, zns, times = [], [], [], [], [], [], [], []
+    for i, sig in enumerate(data.signals):
+        zn = sig / z_scale[None, :]
+        pts = zn[:, [i1, i2]]
+        n_whole, turns, direction = whole_periods(pts, pts.mean(axis=0))
+        if turns < 1:
+            raise BifidInputError(
+                f"Record {i} (param {params[i]:g}) holds less than one period in the plane "
+                f"({data.signal_names[i1]}, {data.signal_names[i2]}); record longer time series."
+            )
+        zn = zn[:n_whole]
+        pts = pts[:n_whole]
+        t = np.arange(n_whole) / data.sample_rates[i]
+        c = np.asarray(polygon_centroid(jnp.asarray(pts)))
+        ang = unwrapped_angle(pts, c)
+        slope = np.polyfit(t, ang, 1)[0]
+        coef = np.asarray(polar_coefficients(jnp.asarray(pts), jnp.asarray(c), n_harmonics))
+        d = pts - c[None, :]
+        coefs.append(coef)
+        centres.append(c)
+        sizes.append(coef[0])
+        covs.append(d.T @ d / len(d))
+        omegas.append(abs(slope))
+        dirs.append(direction)
+        zns.append(zn)
+        times.append(t)
+    dirs = np.asarray(dirs)
+    direction = 1.0 if np.sum(dirs) >= 0 else -1.0
+    if np.any(dirs != direction):
+        bad = [float(params[i]) for i in np.nonzero(dirs != direction)[0]]
+        warnings.warn(
+            f"Records at {bad} rotate the other way in the plane; check the signals' signs.",
+            ConvergenceWarning,
+            stacklevel=3,
+        )
+    return Prepared(
+        mu_c=mu_c,
+        mu_s=mu_s,
+        z_scale=np.asarray(z_scale, dtype=float),
+        plane=(i1, i2),
+        mu_t=(params - mu_c) / mu_s,
+        branch=data.branch.copy(),
+        coef=np.asarray(coefs),
+        centre=np.asarray(centres),
+        size=np.asarray(sizes),
+        cov=np.asarray(covs),
+        omega=np.asarray(omegas),
+        direction=direction,
+        zn=zns,
+        times=times,
+    )

@@ -1,0 +1,264 @@
+"""System metadata, parameter handling and the registry of reference systems.
+
+A :class:`System` is a pure JAX vector field plus the metadata that the CLI, the
+virtual rigs and the identification code need (state names, parameters with units
+and nominal values, where a force or a controller enters).
+
+The full right-hand side of a system is
+
+.. math::
+
+    \\dot x = f(x, p) + b(p)\\,\\bigl(F\\cos(\\Omega t) + u(t)\\bigr)
+
+where ``f`` is the autonomous field (:attr:`System.field`), ``b`` the forcing
+direction (:attr:`System.forcing_direction`, forced systems only) and ``u`` an
+optional control input along :attr:`System.input_direction`.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass, field
+from typing import Literal
+
+import jax.numpy as jnp
+import numpy as np
+
+from bifid.errors import BifidInputError
+
+Array = jnp.ndarray
+FieldFn = Callable[[Array, Array], Array]
+DirectionFn = Callable[[Array], Array]
+
+
+@dataclass(frozen=True)
+class Parameter:
+    """A named system parameter.
+
+    Parameters
+    ----------
+    name : str
+        Identifier used on the command line (``--set name=value``).
+    default : float
+        Nominal value.
+    unit : str
+        Physical unit ("nd" for non-dimensional).
+    description : str
+        One line saying what the parameter is.
+    """
+
+    name: str
+    default: float
+    unit: str = "nd"
+    description: str = ""
+
+    def __post_init__(self) -> None:
+        if not math.isfinite(self.default):
+            raise BifidInputError(
+                f"Parameter {self.name!r} must have a finite default, got {self.default!r}."
+            )
+
+
+@dataclass(frozen=True)
+class System:
+    """A vector field with its metadata.
+
+    Attributes
+    ----------
+    name : str
+        Registry name.
+    states : tuple of str
+        State names, in the order of the state vector.
+    parameters : tuple of Parameter
+        Parameters, in the order of the parameter vector ``p``.
+    field : callable ``(x, p) -> dx``
+        Autonomous part of the vector field, for one state ``x`` of shape ``(n,)``
+        and a parameter vector ``p`` of shape ``(n_params,)``. Pure JAX.
+    kind : {"autonomous", "forced"}
+        Forced systems are driven by ``F cos(Omega t)`` along ``forcing_direction``
+        and must have parameters named ``F`` and ``Omega``.
+    forcing_direction : callable ``p -> b`` or None
+        State-space direction of the harmonic force (forced systems).
+    input_direction : callable ``p -> e`` or None
+        State-space direction along which a control input/actuator acts.
+    observed : str
+        The state whose amplitude a forced response reports, and on which a CBC
+        controller acts.
+    default_param : str
+        The usual bifurcation parameter.
+    description : str
+        The equations (shown by ``bifid systems``).
+    """
+
+    name: str
+    states: tuple[str, ...]
+    parameters: tuple[Parameter, ...]
+    field: FieldFn
+    kind: Literal["autonomous", "forced"] = "autonomous"
+    forcing_direction: DirectionFn | None = None
+    input_direction: DirectionFn | None = None
+    observed: str = ""
+    default_param: str = ""
+    description: str = ""
+    _index: Mapping[str, int] = field(default_factory=dict, repr=False, compare=False)
+
+    def __post_init__(self) -> None:
+        names = [p.name for p in self.parameters]
+        if len(set(names)) != len(names):
+            raise BifidInputError(f"System {self.name!r} has duplicated parameter names: {names}.")
+        if len(set(self.states)) != len(self.states):
+            raise BifidInputError(f"System {self.name!r} has duplicated state names.")
+        if self.kind not in ("autonomous", "forced"):
+            raise BifidInputError(f"kind must be 'autonomous' or 'forced', got {self.kind!r}.")
+        if self.kind == "forced":
+            missing = {"F", "Omega"} - set(names)
+            if missing or self.forcing_direction is None:
+                raise BifidInputError(
+                    f"Forced system {self.name!r} needs parameters 'F' and 'Omega' and a "
+                    f"forcing_direction; missing {sorted(missing) or 'forcing_direction'}."
+                )
+        object.__setattr__(self, "_index", {n: i for i, n in enumerate(names)})
+        if not self.observed:
+            object.__setattr__(self, "observed", self.states[0])
+        if self.observed not in self.states:
+            raise BifidInputError(
+                f"observed state {self.observed!r} is not a state of {self.name!r} "
+                f"(states: {', '.join(self.states)})."
+            )
+
+    # -- parameters ---------------------------------------------------------------
+    @property
+    def n_states(self) -> int:
+        return len(self.states)
+
+    @property
+    def parameter_names(self) -> tuple[str, ...]:
+        return tuple(p.name for p in self.parameters)
+
+    def index(self, name: str) -> int:
+        """Position of parameter ``name`` in the parameter vector.
+
+        Raises
+        ------
+        BifidInputError
+            If the system has no such parameter.
+        """
+        try:
+            return self._index[name]
+        except KeyError:
+            raise BifidInputError(
+                f"System {self.name!r} has no parameter {name!r}; "
+                f"known: {', '.join(self.parameter_names)}."
+            ) from None
+
+    def state_index(self, name: str) -> int:
+        """Position of state ``name`` in the state vector."""
+        try:
+            return self.states.index(name)
+        except ValueError:
+            raise BifidInputError(
+                f"System {self.name!r} has no state {name!r}; known: {', '.join(self.states)}."
+            ) from None
+
+    def param_vector(self, overrides: Mapping[str, float] | None = None, **kw: float) -> Array:
+        """Parameter vector with defaults, overridden by ``overrides`` and keywords.
+
+        Raises
+        ------
+        BifidInputError
+            On an unknown name or a value that is not a finite number.
+        """
+        values = np.array([p.default for p in self.parameters], dtype=np.float64)
+        merged = dict(overrides or {})
+        merged.update(kw)
+        for name, value in merged.items():
+            i = self.index(name)
+            try:
+                v = float(value)
+            except (TypeError, ValueError):
+                raise BifidInputError(
+                    f"Parameter {name!r} must be a number, got {value!r}."
+                ) from None
+            if not math.isfinite(v):
+                raise BifidInputError(f"Parameter {name!r} must be finite, got {value!r}.")
+            values[i] = v
+        return jnp.asarray(values)
+
+    def param_dict(self, p: Array) -> dict[str, float]:
+        """Parameter vector as a ``{name: value}`` dict of Python floats."""
+        p = np.asarray(p)
+        return {n: float(p[i]) for i, n in enumerate(self.parameter_names)}
+
+    # -- vector field -------------------------------------------------------------
+    def rhs(self, x: Array, t: Array, p: Array) -> Array:
+        """Full right-hand side ``f(x, p) + b(p) F cos(Omega t)`` for one state."""
+        dx = self.field(x, p)
+        if self.kind == "forced":
+            assert self.forcing_direction is not None
+            force = p[self.index("F")] * jnp.cos(p[self.index("Omega")] * t)
+            dx = dx + self.forcing_direction(p) * force
+        return dx
+
+    def to_json(self) -> dict:
+        """The ``bifid systems`` entry of this system."""
+        return {
+            "name": self.name,
+            "kind": self.kind,
+            "states": list(self.states),
+            "parameters": [
+                {"name": p.name, "default": p.default, "unit": p.unit, "description": p.description}
+                for p in self.parameters
+            ],
+            "observed": self.observed,
+            "default_param": self.default_param,
+        }
+
+
+_REGISTRY: dict[str, Callable[[], System]] = {}
+
+
+def register(name: str, factory: Callable[[], System] | System, *, overwrite: bool = False) -> None:
+    """Register a system (or a zero-argument factory building one) under ``name``.
+
+    Examples
+    --------
+    >>> import jax.numpy as jnp
+    >>> from bifid.systems import Parameter, System, register, get_system
+    >>> def field(x, p):
+    ...     return jnp.array([x[1], -p[0] * x[0] - 0.1 * x[1] - x[0] ** 3])
+    >>> register("my_osc", System(name="my_osc", states=("q", "qd"),
+    ...          parameters=(Parameter("k", 1.0, "N/m"),), field=field,
+    ...          default_param="k"), overwrite=True)
+    >>> get_system("my_osc").n_states
+    2
+    """
+    if name in _REGISTRY and not overwrite:
+        raise BifidInputError(f"A system named {name!r} is already registered; pass overwrite=True.")
+    if isinstance(factory, System):
+        system = factory
+        _REGISTRY[name] = lambda: system
+    else:
+        _REGISTRY[name] = factory
+
+
+def get_system(name: str) -> System:
+    """Return the registered system ``name``.
+
+    Raises
+    ------
+    BifidInputError
+        If no system of that name is registered.
+    """
+    try:
+        factory = _REGISTRY[name]
+    except KeyError:
+        raise BifidInputError(
+            f"Unknown system {name!r}; known systems: {', '.join(sorted(_REGISTRY))}."
+        ) from None
+    return factory()
+
+
+def list_systems() -> list[str]:
+    """Names of all registered systems."""
+    return sorted(_REGISTRY)
