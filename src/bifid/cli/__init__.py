@@ -36,8 +36,22 @@ def _load_commands() -> None:
                 raise
 
 
+def _enable_compilation_cache() -> None:
+    """Persistent XLA cache so repeated commands skip JIT compilation (BIFID_JAX_CACHE="" disables)."""
+    import os
+    from pathlib import Path
+
+    import jax
+
+    path = os.environ.get("BIFID_JAX_CACHE", str(Path.home() / ".cache" / "bifid" / "jax"))
+    if path:
+        jax.config.update("jax_compilation_cache_dir", path)
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+
+
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the ``bifid`` console script."""
+    _enable_compilation_cache()
     _load_commands()
     app(args=argv if argv is not None else sys.argv[1:], prog_name="bifid")
 

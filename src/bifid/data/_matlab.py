@@ -12,6 +12,7 @@ in rad/s, static offsets removed from the signals and kept as per-record extras.
 from __future__ import annotations
 
 import dataclasses
+import io
 import math
 import os
 import re
@@ -22,6 +23,7 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from bifid.data._matcheck import check_mat_v5
 from bifid.data._netcdf import forced_dataset, lco_dataset
 from bifid.data._records import ForcedRecord, LCORecord
 from bifid.data._signal import estimate_frequency, fill_gaps, periodic_max_abs
@@ -78,9 +80,12 @@ def load_mat(path: str | os.PathLike[str]) -> dict[str, Any]:
     size = path.stat().st_size
     if size > MAX_MAT_BYTES:
         raise BifidInputError(f"{path}: {size / 1e6:.0f} MB is larger than the 512 MB limit.")
+    blob = path.read_bytes()
+    # scipy's compiled reader can crash the interpreter on corrupted element tags:
+    # check the file's structure in Python first
+    check_mat_v5(blob, str(path))
     try:
-        with open(path, "rb") as fh:
-            m = scipy.io.loadmat(fh, squeeze_me=True, struct_as_record=False)
+        m = scipy.io.loadmat(io.BytesIO(blob), squeeze_me=True, struct_as_record=False)
     except NotImplementedError:
         raise BifidInputError(
             f"{path}: MATLAB v7.3 (HDF5) files are not supported; re-save with "

@@ -87,6 +87,14 @@ def _pad(rows: list[np.ndarray | None], n_time: int) -> np.ndarray:
     return out
 
 
+def _rms(x: np.ndarray) -> float:
+    """Root mean square without overflow for values near the float64 limit."""
+    scale = float(np.max(np.abs(x))) if x.size else 0.0
+    if scale == 0.0:
+        return 0.0
+    return scale * float(np.sqrt(np.mean((x / scale) ** 2)))
+
+
 def _common(records: Sequence[LCORecord | ForcedRecord], names: list[str]) -> dict[str, Any]:
     n_time = max(r.n_samples for r in records)
     n_sig = len(names)
@@ -99,7 +107,7 @@ def _common(records: Sequence[LCORecord | ForcedRecord], names: list[str]) -> di
         sig[i, :n] = r.signals
         c = r.control if r.control is not None else np.zeros(n)
         control[i, :n] = c
-        crms[i] = float(np.sqrt(np.mean(c**2)))
+        crms[i] = _rms(c)
         if r.target is not None:
             target[i, :n] = r.target
     stable = np.array([-1 if r.stable is None else int(r.stable) for r in records], dtype=np.int8)

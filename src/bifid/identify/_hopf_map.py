@@ -229,9 +229,9 @@ def trainer(config: MapConfig):
 
 @functools.lru_cache(maxsize=16)
 def loss_evaluator(config: MapConfig):
-    """Compiled per-orbit losses for a batch of parameters: ``(params, data) -> (batch, n)``."""
+    """Compiled per-orbit losses: ``(params, data) -> (n_orbits,)``."""
     static = mlp_static(3, 2, config.width, config.depth)
-    return jax.jit(jax.vmap(lambda p, d: orbit_losses(p, static, d, config), in_axes=(0, None)))
+    return jax.jit(lambda p, d: orbit_losses(p, static, d, config))
 
 
 # --------------------------------------------------------------------- initialisation

@@ -110,8 +110,14 @@ def fold_mu(mu0_t: float, a2: float, q5: float) -> float | None:
     return float(mu0_t - a2**2 / 4.0)
 
 
-def raw_a2(a2: float, mu_scale: float) -> float:
-    r""":math:`a_2` of eq. 5.3 written in the raw parameter (see module docstring)."""
+def raw_a2(a2: float, mu_scale: float, q5: float = 1.0) -> float:
+    r""":math:`a_2` of eq. 5.3 written in the raw parameter (see module docstring).
+
+    Without the quintic term :math:`a_2 = -1` in either scaling (it only fixes the unit of
+    :math:`r`: :math:`r = \sqrt{\mu_s}\rho`).
+    """
+    if q5 == 0.0:
+        return float(a2)
     return float(a2 * np.sqrt(mu_scale))
 
 

@@ -41,8 +41,9 @@ class Prepared:
     cov: np.ndarray  # (n, 2, 2)
     omega: np.ndarray  # (n,) rad/s, > 0
     direction: float  # +1 counter-clockwise, -1 clockwise in the plane
-    zn: list[np.ndarray]  # normalised signals, whole periods only
+    zn: list[np.ndarray]  # normalised signals, whole records
     times: list[np.ndarray]  # sample times of zn [s]
+    n_whole: np.ndarray  # (n,) samples spanning whole periods (used for the geometry)
 
     def arrays(self) -> dict[str, jnp.ndarray]:
         """The per-orbit arrays of the map stage (JAX)."""
@@ -90,6 +91,7 @@ def prepare(
         z_scale = np.sqrt(np.mean(allsig**2, axis=0))
         z_scale = np.where(z_scale > 0, z_scale, 1.0)
     coefs, centres, sizes, covs, omegas, dirs, zns, times = [], [], [], [], [], [], [], []
+    wholes = []
     for i, sig in enumerate(data.signals):
         zn = sig / z_scale[None, :]
         pts = zn[:, [i1, i2]]
@@ -99,12 +101,17 @@ def prepare(
                 f"Record {i} (param {params[i]:g}) holds less than one period in the plane "
                 f"({data.signal_names[i1]}, {data.signal_names[i2]}); record longer time series."
             )
-        zn = zn[:n_whole]
+        t_all = np.arange(len(zn)) / data.sample_rates[i]
         pts = pts[:n_whole]
-        t = np.arange(n_whole) / data.sample_rates[i]
+        t = t_all[:n_whole]
         c = np.asarray(polygon_centroid(jnp.asarray(pts)))
-        ang = unwrapped_angle(pts, c)
-        slope = np.polyfit(t, ang, 1)[0]
+        # frequency: time of `turns` whole revolutions about the centroid (interpolated)
+        ang = unwrapped_angle(zn[:, [i1, i2]], c)
+        travel = direction * (ang - ang[0])
+        k = int(np.searchsorted(travel, turns * 2 * np.pi))
+        k = min(max(k, 1), len(travel) - 1)
+        frac = (turns * 2 * np.pi - travel[k - 1]) / max(travel[k] - travel[k - 1], 1e-300)
+        slope = turns * 2 * np.pi / ((k - 1 + frac) / data.sample_rates[i])
         coef = np.asarray(polar_coefficients(jnp.asarray(pts), jnp.asarray(c), n_harmonics))
         d = pts - c[None, :]
         coefs.append(coef)
@@ -114,7 +121,8 @@ def prepare(
         omegas.append(abs(slope))
         dirs.append(direction)
         zns.append(zn)
-        times.append(t)
+        times.append(t_all)
+        wholes.append(n_whole)
     dirs = np.asarray(dirs)
     direction = 1.0 if np.sum(dirs) >= 0 else -1.0
     if np.any(dirs != direction):
@@ -139,4 +147,42 @@ def prepare(
         direction=direction,
         zn=zns,
         times=times,
+        n_whole=np.asarray(wholes),
     )
+
+
+def choose_harmonics(
+    data: LCOData, plane: tuple[int, int], n_max: int = 32, tol: float = 1e-3
+) -> int:
+    r"""Smallest number of polar harmonics that represents every orbit to ``tol``.
+
+    For each orbit the polar series (eq. 5.5) is fitted with ``n_max`` harmonics; the noise
+    floor per coefficient is the median energy of the top quarter of harmonics, and ``n`` is
+    the smallest value for which the energy above ``n`` (less that floor) is below
+    :math:`\mathrm{tol}^2 a_0^2`, i.e. the truncation moves the curve by about
+    ``tol`` of its radius. Returns a value in ``[4, n_max]``.
+    """
+    i1, i2 = plane
+    allsig = np.concatenate(data.signals, axis=0)
+    z_scale = np.sqrt(np.mean(allsig**2, axis=0))
+    z_scale = np.where(z_scale > 0, z_scale, 1.0)
+    best = 4
+    for sig in data.signals:
+        pts = sig[:, [i1, i2]] / z_scale[[i1, i2]]
+        n_whole, turns, _ = whole_periods(pts, pts.mean(axis=0))
+        if turns < 1:
+            continue
+        pts = pts[:n_whole]
+        nmax = int(min(n_max, (len(pts) - 1) // 6))
+        if nmax <= 4:
+            continue
+        c = np.asarray(polygon_centroid(jnp.asarray(pts)))
+        coef = np.asarray(polar_coefficients(jnp.asarray(pts), jnp.asarray(c), nmax))
+        energy = 0.5 * (coef[1 : nmax + 1] ** 2 + coef[nmax + 1 :] ** 2)  # per harmonic
+        floor = float(np.median(energy[-max(2, nmax // 4) :]))
+        for n in range(4, nmax + 1):
+            tail = np.sum(np.maximum(energy[n:] - floor, 0.0))
+            if tail <= (tol * coef[0]) ** 2:
+                break
+        best = max(best, n)
+    return int(best)

@@ -61,6 +61,11 @@ class SpeedConfig:
     learning_rate : float
     n_sub : int
         RK4 sub-steps per sample interval.
+    form : {"log", "additive"}
+        ``"additive"``: eq. 5.10 as printed, :math:`\Omega = \omega_s(c_0 + \mathbf c^{\mathsf T}
+        \mathbf b(\theta))`; ``"log"``: :math:`\Omega = \omega_s\exp(c_0 + \mathbf c^{\mathsf T}
+        \mathbf b(\theta))`, positive by construction (a speed that changes sign would put an
+        equilibrium on the cycle); identical when ``n_harmonics = 0`` up to reparametrisation.
     map_width, map_depth : int
         Shape of the map network (to evaluate :math:`\\mathbf U_{12}`).
     """
@@ -72,31 +77,41 @@ class SpeedConfig:
     n_adam: int = 200
     learning_rate: float = 3e-3
     n_sub: int = 2
+    form: str = "log"
     map_width: int = 16
     map_depth: int = 2
 
 
-def speed(om, static, rho: Array, theta: Array, mu_t: Array, omega_scale: float, nh: int):
-    """:math:`\\Omega(\\rho, \\theta, \\tilde\\mu)` of eq. 5.10 at one point."""
+def log_speed_coefficients(om, static, rho: Array, mu_t: Array, config: SpeedConfig) -> Array:
+    r"""Coefficients :math:`\mathbf c` of :math:`g(\theta) = \mathbf c^{\mathsf T}[1, \cos\theta,
+    \dots, \sin n\theta]` such that :math:`\Omega = \omega_s g` (additive form) or
+    :math:`\Omega = \omega_s e^{g}` (log form)."""
     coef = mlp_apply(om["nn"], static, jnp.stack([rho, mu_t]))
-    basis = fourier_design(jnp.atleast_1d(theta), nh)[0]
-    return om["w0"] + omega_scale * jnp.dot(coef, basis)
+    return coef.at[0].add(om["w0"])
 
 
-def speed_profile(om, static, rho, mu_t, omega_scale, nh) -> Array:
-    """Fourier coefficients of :math:`\\Omega(\\rho, \\cdot, \\tilde\\mu)` (shape ``(2n+1,)``)."""
-    coef = mlp_apply(om["nn"], static, jnp.stack([rho, mu_t]))
-    return omega_scale * coef + jnp.zeros_like(coef).at[0].set(om["w0"])
+def speed_from_coefficients(coef: Array, theta: Array, omega_scale, form: str) -> Array:
+    """:math:`\Omega` at phases ``theta`` from the coefficients of :func:`log_speed_coefficients`."""
+    g = fourier_design(jnp.atleast_1d(theta), (coef.shape[0] - 1) // 2) @ coef
+    return omega_scale * (jnp.exp(g) if form == "log" else g)
 
 
-def integrate_phase(om, static, rho, mu_t, theta0, h, n_steps, n_sub, omega_scale, nh):
+def speed(om, static, rho: Array, theta: Array, mu_t: Array, omega_scale, config: SpeedConfig):
+    """:math:`\Omega(\rho, \theta, \tilde\mu)` of eq. 5.10 at one point (scalar)."""
+    coef = log_speed_coefficients(om, static, rho, mu_t, config)
+    return speed_from_coefficients(coef, theta, omega_scale, config.form)[0]
+
+
+def integrate_phase(om, static, rho, mu_t, theta0, h, n_steps, omega_scale, config):
     r"""RK4 on :math:`\dot\theta = \Omega(\rho, \theta, \tilde\mu)`; ``theta`` at ``n_steps`` samples.
 
-    ``h`` is the sample interval; each interval takes ``n_sub`` RK4 steps.
+    ``h`` is the sample interval; each interval takes ``config.n_sub`` RK4 steps.
     """
+    coef = log_speed_coefficients(om, static, rho, mu_t, config)
+    n_sub = config.n_sub
 
     def f(th):
-        return speed(om, static, rho, th, mu_t, omega_scale, nh)
+        return speed_from_coefficients(coef, th, omega_scale, config.form)[0]
 
     dt = h / n_sub
 
@@ -146,64 +161,81 @@ def invert_phase(phi_grid: np.ndarray, angles: np.ndarray, beta: np.ndarray):
     return np.interp(b, a_ext, p_ext), monotone
 
 
-def speed_from_phase(t: np.ndarray, phi_unwrapped: np.ndarray, nh: int, n_grid: int = 256):
-    r"""Per-orbit speed profile from sample times and unwrapped phases.
+def speed_from_phase(
+    t: np.ndarray, phi_unwrapped: np.ndarray, omega: float, grid: np.ndarray,
+    n_time_harmonics: int = 40,
+) -> np.ndarray:
+    r"""An orbit's speed profile :math:`\Omega(\phi)` on ``grid`` from its phase trajectory.
 
-    Fits :math:`t = t_0 + d_0\phi + \sum_k (d^c_k \sin k\phi - d^s_k\cos k\phi)/k`, i.e.
-    :math:`1/\Omega(\phi) = d_0 + \sum_k d^c_k\cos k\phi + d^s_k\sin k\phi`, then returns the
-    Fourier coefficients of :math:`\Omega = 1/(\cdot)` (``(2nh+1,)``), or the mean speed alone
-    when the fitted :math:`1/\Omega` is not positive.
+    On a limit cycle of period :math:`T = 2\pi/\omega` the phase minus its mean advance is
+    periodic in time, so
+
+    .. math::
+
+        \phi(t) = \phi_0 + \omega t + \sum_{k=1}^{K} c_k\cos k\omega t + d_k\sin k\omega t
+
+    is a linear least-squares fit (noise averages out; any record length), and
+    :math:`\Omega = \dot\phi` follows analytically at every sample. The samples
+    :math:`(\phi(t_j) \bmod 2\pi, \Omega_j)` are interpolated periodically onto ``grid``.
+    The measured ``omega`` (from whole revolutions in the plane) fixes the period.
     """
     sgn = 1.0 if phi_unwrapped[-1] >= phi_unwrapped[0] else -1.0
-    p = sgn * phi_unwrapped
-    cols = [np.ones_like(p), p]
-    nfit = max(nh, 1) if nh > 0 else 0
-    for k in range(1, nfit + 1):
-        cols += [np.sin(k * p) / k, -np.cos(k * p) / k]
+    p = sgn * np.asarray(phi_unwrapped)
+    t = np.asarray(t) - t[0]
+    K = int(max(0, min(n_time_harmonics, (len(p) - 4) // 6)))
+    wt = omega * t
+    cols = [np.ones_like(t), t]
+    for k in range(1, K + 1):
+        cols += [np.cos(k * wt), np.sin(k * wt)]
     X = np.stack(cols, axis=1)
-    coef, *_ = np.linalg.lstsq(X, t, rcond=None)
-    grid = np.linspace(0, 2 * np.pi, n_grid, endpoint=False)
-    s = np.full_like(grid, coef[1])
-    for k in range(1, nfit + 1):
-        s += coef[2 * k] * np.cos(k * grid) + coef[2 * k + 1] * np.sin(k * grid)
+    coef, *_ = np.linalg.lstsq(X, p, rcond=None)
+    dphi = np.full_like(t, coef[1])
+    for k in range(1, K + 1):
+        dphi += k * omega * (-coef[2 * k] * np.sin(k * wt) + coef[2 * k + 1] * np.cos(k * wt))
+    dphi = np.maximum(dphi, 0.02 * abs(coef[1]))
+    phase = np.mod(X @ coef, 2 * np.pi)
+    order = np.argsort(phase)
+    return np.interp(grid, phase[order], dphi[order], period=2 * np.pi)
+
+
+def project(values: np.ndarray, grid: np.ndarray, nh: int) -> np.ndarray:
+    """Fourier coefficients ``[a0, a1..an, b1..bn]`` of samples on a uniform periodic grid."""
     out = np.zeros(2 * nh + 1)
-    if np.all(s > 0):
-        om = 1.0 / s
-        out[0] = om.mean()
-        for k in range(1, nh + 1):
-            out[k] = 2 * np.mean(om * np.cos(k * grid))
-            out[nh + k] = 2 * np.mean(om * np.sin(k * grid))
-    else:
-        out[0] = (p[-1] - p[0]) / (t[-1] - t[0])
+    out[0] = values.mean()
+    for k in range(1, nh + 1):
+        out[k] = 2 * np.mean(values * np.cos(k * grid))
+        out[nh + k] = 2 * np.mean(values * np.sin(k * grid))
     return out
 
 
 # --------------------------------------------------------------------------- training
-def init_speed_params(key, config: SpeedConfig, omega0: float):
+def init_speed_params(key, config: SpeedConfig, w0: float = 0.0):
+    """Network with a zero output layer and constant term ``w0`` (normalised units)."""
     import equinox as eqx
 
     out = 2 * config.n_harmonics + 1
     net = mlp(key, 2, out, config.width, config.depth, 0.0)
-    return {"nn": eqx.filter(net, eqx.is_array), "w0": jnp.asarray(omega0)}
+    return {"nn": eqx.filter(net, eqx.is_array), "w0": jnp.asarray(w0)}
 
 
 @functools.lru_cache(maxsize=16)
 def profile_trainer(config: SpeedConfig):
     """Fit of the network to per-orbit speed profiles (targets), with per-orbit losses.
 
-    ``(om, rho, mu_t, target, weights, lam, omega_scale) -> (om, history (n_fit, n))``.
+    ``(om, rho, mu_t, target, weights, lam) -> (om, history (n_fit, n))``; ``target`` holds the
+    per-orbit coefficients of :math:`g` (see :func:`log_speed_coefficients`).
     """
     static = mlp_static(2, 2 * config.n_harmonics + 1, config.width, config.depth)
     nh = config.n_harmonics
 
-    def run(om, rho, mu_t, target, weights, lam, omega_scale):
+    def run(om, rho, mu_t, target, weights, lam):
         def per_orbit(theta):
-            pred = jax.vmap(lambda r, m: speed_profile(theta, static, r, m, omega_scale, nh))(
+            pred = jax.vmap(lambda r, m: log_speed_coefficients(theta, static, r, m, config))(
                 rho, mu_t
             )
-            # relative squared error of the profile (Parseval weights)
+            # squared L2 distance of the profiles (Parseval weights), normalised units
             w = jnp.concatenate([jnp.ones(1), 0.5 * jnp.ones(2 * nh)])
-            return jnp.sum(w * (pred - target) ** 2, axis=1) / omega_scale**2
+            return jnp.sum(w * (pred - target) ** 2, axis=1)
 
         def loss(theta):
             e = per_orbit(theta)
@@ -231,8 +263,8 @@ def series_trainer(config: SpeedConfig, n_steps: int):
     def run(om, map_params, rho, mu_t, theta0, h, z, mask, lam, omega_scale):
         def residuals(theta):
             def one(r, m, th0, hh, zz, mm):
-                ths = integrate_phase(theta, static, r, m, th0, hh, n_steps, config.n_sub,
-                                      omega_scale, nh)
+                ths = integrate_phase(theta, static, r, m, th0, hh, n_steps, omega_scale,
+                                      config)
                 u = r * jnp.stack([jnp.cos(ths), jnp.sin(ths)], axis=1)
                 pred = jax.vmap(lambda ui: u12(map_params, map_static, ui, m))(u)
                 return jnp.sum(mm[:, None] * (pred - zz) ** 2) / jnp.maximum(jnp.sum(mm), 1.0)
@@ -252,29 +284,14 @@ def series_trainer(config: SpeedConfig, n_steps: int):
 
 
 @functools.lru_cache(maxsize=16)
-def period_fn(config: SpeedConfig, n_quad: int = 256):
-    r"""Compiled :math:`T = \int_0^{2\pi}\mathrm d\theta/\Omega` and :math:`\min_\theta\Omega`
-    for arrays of ``(rho, mu_t)``: ``(om, rho, mu_t, omega_scale) -> (T, min_speed)``."""
+def speed_on_grid_fn(config: SpeedConfig, n_grid: int = 512):
+    r"""Compiled :math:`\Omega(\rho_k, \theta_j, \tilde\mu_k)` on a uniform grid of phases
+    for arrays ``rho``, ``mu_t``: ``(om, rho, mu_t, omega_scale) -> (n, n_grid)``."""
     static = mlp_static(2, 2 * config.n_harmonics + 1, config.width, config.depth)
-    nh = config.n_harmonics
-    grid = jnp.linspace(0.0, 2 * jnp.pi, n_quad, endpoint=False)
+    grid = jnp.linspace(0.0, 2 * jnp.pi, n_grid, endpoint=False)
 
     def one(om, r, m, omega_scale):
-        prof = speed_profile(om, static, r, m, omega_scale, nh)
-        om_vals = fourier_design(grid, nh) @ prof
-        return 2 * jnp.pi * jnp.mean(1.0 / om_vals), jnp.min(om_vals)
+        coef = log_speed_coefficients(om, static, r, m, config)
+        return speed_from_coefficients(coef, grid, omega_scale, config.form)
 
     return jax.jit(jax.vmap(one, in_axes=(None, 0, 0, None)))
-
-
-@functools.lru_cache(maxsize=16)
-def phase_series_fn(config: SpeedConfig, n_steps: int):
-    """Compiled phase integration for one orbit: ``(om, rho, mu_t, theta0, h, omega_scale)``."""
-    static = mlp_static(2, 2 * config.n_harmonics + 1, config.width, config.depth)
-    nh = config.n_harmonics
-
-    def run(om, rho, mu_t, theta0, h, omega_scale):
-        return integrate_phase(om, static, rho, mu_t, theta0, h, n_steps, config.n_sub,
-                               omega_scale, nh)
-
-    return jax.jit(run)

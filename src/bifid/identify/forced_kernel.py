@@ -569,6 +569,11 @@ class ForcedKernelModel:
     phase_points : int
         Phases per record used to train ``φ`` (capped so the GP has ≤ ``max_phi_points``).
     max_phi_points : int
+    noise_floor : float
+        Lower bound of the GPs' noise standard deviation relative to the targets' RMS.
+        Keeps ``K_y`` well conditioned (its condition number ≲ noise_floor⁻²) so the
+        posterior mean is free of round-off that would stall Newton's method; noise-free
+        (simulated) data put the noise on this bound.
     n_restarts : int
         Extra seeded L-BFGS starts per GP.
     seed : int
@@ -585,8 +590,9 @@ class ForcedKernelModel:
         n_pseudo: int = 12,
         rho_min_fraction: float = 0.02,
         observation: bool = True,
-        phase_points: int = 24,
-        max_phi_points: int = 480,
+        phase_points: int = 16,
+        max_phi_points: int = 256,
+        noise_floor: float = 1e-5,
         n_restarts: int = 1,
         seed: int = 0,
     ) -> None:
@@ -600,6 +606,7 @@ class ForcedKernelModel:
         self.observation = observation
         self.phase_points = phase_points
         self.max_phi_points = max_phi_points
+        self.noise_floor = noise_floor
         self.n_restarts = n_restarts
         self.seed = seed
 
@@ -612,7 +619,7 @@ class ForcedKernelModel:
             "b_basis": [list(m) for m in self.b_basis], "n_pseudo": self.n_pseudo,
             "rho_min_fraction": self.rho_min_fraction, "observation": self.observation,
             "phase_points": self.phase_points, "max_phi_points": self.max_phi_points,
-            "n_restarts": self.n_restarts, "seed": self.seed,
+            "noise_floor": self.noise_floor, "n_restarts": self.n_restarts, "seed": self.seed,
         }
 
     def _check_params(self) -> None:
@@ -645,7 +652,7 @@ class ForcedKernelModel:
         return GPRegressor(
             basis=basis, basis_center=center, criterion=self.selection,
             n_restarts=self.n_restarts, seed=self.seed,
-            bounds=HyperBounds(length_scale=(0.05, 100.0), noise=(1e-7, 1.0)),
+            bounds=HyperBounds(length_scale=(0.05, 100.0), noise=(self.noise_floor, 1.0)),
         )
 
     def _check_fitted(self) -> None:
@@ -862,7 +869,7 @@ class ForcedKernelModel:
         gp = GPRegressor(
             basis=((1, 0), (0, 1)), basis_center=(0.0, 0.0), criterion=self.selection,
             n_restarts=self.n_restarts, seed=self.seed,
-            bounds=HyperBounds(length_scale=(0.05, 100.0), noise=(1e-7, 1.0)),
+            bounds=HyperBounds(length_scale=(0.05, 100.0), noise=(self.noise_floor, 1.0)),
         )
         rs = float(np.max(rho))
         return gp.fit(z, y, x_scale=np.array([rs, rs]))
@@ -1013,7 +1020,7 @@ class ForcedKernelModel:
         s_om = max(hi - lo, 1e-12)
         weights = jnp.asarray([1.0 / s_rho**2, 1.0, 1.0 / s_om**2])
         opts = options or ContinuationOptions(
-            ds=0.01, ds_min=1e-8, ds_max=0.04, max_steps=4000, newton_tol=1e-11,
+            ds=0.01, ds_min=1e-8, ds_max=0.04, max_steps=4000, newton_tol=1e-9,
         )
         opts = opts.with_(p_min=lo - 1e-12, p_max=hi)
         args = {"model": self.model_, "gamma": jnp.asarray(gamma)}

@@ -51,7 +51,6 @@ from bifid.identify import _hopf_map as hm
 from bifid.identify import _hopf_speed as hs
 from bifid.identify._hopf_data import LCOData, as_lco_data
 from bifid.identify._hopf_normal_form import (
-    STABLE,
     UNSTABLE,
     growth_derivative,
     lco_radius2,
@@ -157,6 +156,10 @@ class HopfHybridModel:
         medoid member, the others give the band.
     omega_harmonics : int
         :math:`n_\Omega` of eq. 5.10.
+    omega_form : {"log", "additive"}
+        ``"additive"``: eq. 5.10 as printed; ``"log"`` (default): the Fourier series gives
+        :math:`\log\Omega`, so the speed is positive by construction (see
+        :class:`~bifid.identify._hopf_speed.SpeedConfig`).
     omega_width, omega_depth : int
         Shape of :math:`\mathrm{NN}_{\Theta_\Omega}`.
     omega_fit_iterations, omega_iterations : int
@@ -194,6 +197,7 @@ class HopfHybridModel:
         stopping: str = "cv",
         n_ensemble: int = 5,
         omega_harmonics: int = 0,
+        omega_form: str = "log",
         omega_width: int = 16,
         omega_depth: int = 2,
         omega_fit_iterations: int = 400,
@@ -222,6 +226,7 @@ class HopfHybridModel:
         self.stopping = stopping
         self.n_ensemble = n_ensemble
         self.omega_harmonics = omega_harmonics
+        self.omega_form = omega_form
         self.omega_width = omega_width
         self.omega_depth = omega_depth
         self.omega_fit_iterations = omega_fit_iterations
@@ -238,7 +243,8 @@ class HopfHybridModel:
     _HYPER = (
         "criticality", "quintic", "plane", "n_harmonics", "n_points", "width", "depth",
         "n_linear", "n_adam", "n_lbfgs", "learning_rate", "regularization",
-        "regularization_grid", "stopping", "n_ensemble", "omega_harmonics", "omega_width",
+        "regularization_grid", "stopping", "n_ensemble", "omega_harmonics", "omega_form",
+        "omega_width",
         "omega_depth", "omega_fit_iterations", "omega_iterations", "omega_learning_rate",
         "omega_regularization", "omega_regularization_grid", "omega_samples", "omega_periods",
         "seed",
@@ -287,6 +293,7 @@ class HopfHybridModel:
             v = getattr(self, name)
             need(len(v) >= 1 and all(math.isfinite(float(x)) and float(x) >= 0 for x in v),
                  name, "a non-empty sequence of numbers >= 0")
+        need(self.omega_form in ("log", "additive"), "omega_form", "'log' or 'additive'")
         need(self.stopping in ("cv", "final") or (
             isinstance(self.stopping, int) and not isinstance(self.stopping, bool)
             and self.stopping >= 0), "stopping", "'cv', 'final' or an iteration count >= 0")
@@ -331,9 +338,9 @@ class HopfHybridModel:
 
             lam, stop, cv = self._select_map_hyper(prep, timer)
             tick("map: cross-validation")
-            members, losses = self._train_members(prep, lam, stop, timer)
+            losses = self._train_members(prep, lam, stop, timer)
             tick("map: ensemble")
-            self._fit_speed(prep, members, timer)
+            self._fit_speed(prep, timer)
             tick("oscillation speed")
             self._fit_observation(prep, timer)
             tick("other signals")
@@ -401,15 +408,6 @@ class HopfHybridModel:
         )
 
     # ------------------------------------------------------------------ map stage
-    def _init_batch(self, prep: Prepared, masks, keys):
-        crit = self.criticality_
-        return _stack(
-            [
-                hm.initial_params(prep, mask, self.map_config_, key, crit)
-                for mask, key in zip(masks, keys, strict=True)
-            ]
-        )
-
     def _select_map_hyper(self, prep: Prepared, timer: _Timer):
         cfg = self.map_config_
         total = cfg.n_adam + cfg.n_lbfgs
@@ -427,27 +425,19 @@ class HopfHybridModel:
                 f"Cross-validation needs at least 3 records, got {n}; pass a number as "
                 "regularization and stopping='final'."
             )
-        folds = [np.arange(n) != i for i in range(n)]
         key = jax.random.key(self.seed)
-        masks, lams, keys = [], [], []
-        for lam in grid:
-            for mask in folds:
-                masks.append(mask)
-                lams.append(lam)
-                keys.append(key)
-        params = self._init_batch(prep, masks, keys)
-        args = (
-            params,
-            prep.arrays(),
-            jnp.asarray(np.asarray(masks, dtype=float)),
-            jnp.asarray(lams),
-            jnp.full(len(lams), total, dtype=jnp.int32),
-        )
-        _, hist, _ = timer.run("map_cv", hm.trainer(cfg), *args)
-        hist = np.asarray(hist)  # (B, T, n)
-        held = np.stack(
-            [hist[b, :, b % n] for b in range(len(lams))]
-        ).reshape(len(grid), n, total)  # (grid, fold, T)
+        data = prep.arrays()
+        train = hm.trainer(cfg)
+        held = np.zeros((len(grid), n, total))
+        for i in range(n):
+            mask = np.arange(n) != i
+            p0 = hm.initial_params(prep, mask, cfg, key, self.criticality_)
+            for g, lam in enumerate(grid):
+                _, hist, _ = timer.run(
+                    "map_cv", train, p0, data, jnp.asarray(mask, dtype=float),
+                    jnp.asarray(lam), jnp.asarray(total, dtype=jnp.int32),
+                )
+                held[g, i] = np.asarray(hist)[:, i]
         held = np.where(np.isfinite(held), held, np.inf)
         score = np.mean(held, axis=1)  # (grid, T)
         if self.stopping == "cv":
@@ -471,24 +461,27 @@ class HopfHybridModel:
         cfg = self.map_config_
         n = len(prep.mu_t)
         S = self.n_ensemble
-        keys = list(jax.random.split(jax.random.key(self.seed), S))
-        masks = [np.ones(n, dtype=bool)] * S
-        params = self._init_batch(prep, masks, keys)
-        args = (
-            params,
-            prep.arrays(),
-            jnp.ones((S, n)),
-            jnp.full(S, lam),
-            jnp.full(S, stop, dtype=jnp.int32),
-        )
-        p, _, final = timer.run("map_ensemble", hm.trainer(cfg), *args)
-        per_orbit = np.asarray(hm.loss_evaluator(cfg)(p, prep.arrays()))
-        ok = np.isfinite(np.asarray(final)) & np.all(np.isfinite(per_orbit), axis=1)
-        leaves = jax.tree_util.tree_leaves(p)
-        ok &= np.all(
-            np.stack([np.all(np.isfinite(np.asarray(x)).reshape(S, -1), axis=1) for x in leaves]),
-            axis=0,
-        )
+        keys = jax.random.split(jax.random.key(self.seed), S)
+        data = prep.arrays()
+        train, evaluate = hm.trainer(cfg), hm.loss_evaluator(cfg)
+        full = np.ones(n, dtype=bool)
+        members, finals, per_orbit, ok = [], [], [], []
+        for s in range(S):
+            p0 = hm.initial_params(prep, full, cfg, keys[s], self.criticality_)
+            p, _, final = timer.run(
+                "map_ensemble", train, p0, data, jnp.ones(n), jnp.asarray(lam),
+                jnp.asarray(stop, dtype=jnp.int32),
+            )
+            losses_s = np.asarray(evaluate(p, data))
+            flat = np.concatenate([np.ravel(x) for x in jax.tree_util.tree_leaves(p)])
+            members.append(_to_numpy(p))
+            finals.append(float(final))
+            per_orbit.append(losses_s)
+            ok.append(bool(np.isfinite(final) and np.all(np.isfinite(losses_s))
+                           and np.all(np.isfinite(flat))))
+        ok = np.asarray(ok)
+        per_orbit = np.asarray(per_orbit)
+        final = np.asarray(finals)
         if not np.any(ok):
             raise ConvergenceError(
                 "The coordinate-map training diverged for every ensemble member; try a smaller "
@@ -501,8 +494,7 @@ class HopfHybridModel:
                 stacklevel=3,
             )
         idx = np.nonzero(ok)[0]
-        p = _index(p, jnp.asarray(idx))
-        self.map_params_ = _to_numpy(p)
+        self.map_params_ = _to_numpy(_stack([members[i] for i in idx]))
         self.n_members_ = len(idx)
         # medoid member: closest to the others in (Hopf, fold, orbit sizes)
         sig = []
@@ -520,7 +512,7 @@ class HopfHybridModel:
             "map_final": [float(v) for v in np.asarray(final)[idx]],
             "map_per_orbit": per_orbit[idx][self.primary_].tolist(),
         }
-        return p, losses
+        return losses
 
     def _cycle_sizes(self, mp, mu_t, branch):
         cfg = self.map_config_
@@ -576,106 +568,110 @@ class HopfHybridModel:
             )
         return out
 
-    def _fit_speed(self, prep: Prepared, members, timer: _Timer) -> None:
+    def _fit_speed(self, prep: Prepared, timer: _Timer) -> None:
         S, n = self.n_members_, len(prep.mu_t)
         self._train_mu_t, self._train_coef, self._train_centre = prep.mu_t, prep.coef, prep.centre
         nh = self.omega_harmonics
-        self.speed_config_ = hs.SpeedConfig(
+        # training windows: <= omega_periods periods, <= omega_samples samples per record
+        windows, h = [], []
+        for i in range(n):
+            fs = 1.0 / (prep.times[i][1] - prep.times[i][0])
+            n_per = 2 * np.pi / prep.omega[i] * fs
+            n_take = int(min(len(prep.zn[i]), math.ceil(self.omega_periods * n_per) + 1))
+            dec = max(1, math.ceil(n_take / self.omega_samples))
+            windows.append(np.arange(0, n_take, dec))
+            h.append(dec / fs)
+        n_steps = max(len(w) for w in windows)
+        n_sub = max(1, math.ceil(max(float(np.max(prep.omega)) * hh for hh in h) / 0.1))
+        cfg = hs.SpeedConfig(
             n_harmonics=nh,
             width=self.omega_width,
             depth=self.omega_depth,
             n_fit=self.omega_fit_iterations,
             n_adam=self.omega_iterations,
             learning_rate=float(self.omega_learning_rate),
-            n_sub=1,
+            n_sub=n_sub,
+            form=self.omega_form,
             map_width=self.width,
             map_depth=self.depth,
         )
-        # training windows: <= omega_periods periods, <= omega_samples samples
-        windows, steps, hs_ = [], [], []
-        for i in range(n):
-            fs = 1.0 / (prep.times[i][1] - prep.times[i][0])
-            n_per = 2 * np.pi / prep.omega[i] * fs
-            n_take = int(min(len(prep.zn[i]), math.ceil(self.omega_periods * n_per) + 1))
-            dec = max(1, math.ceil(n_take / self.omega_samples))
-            idx = np.arange(0, n_take, dec)
-            windows.append(idx)
-            hs_.append(dec / fs)
-        n_steps = max(len(w) for w in windows)
-        max_wh = max(float(np.max(prep.omega)) * h for h in hs_)
-        n_sub = max(1, math.ceil(max_wh / 0.1))
-        self.speed_config_ = hs.SpeedConfig(**{**self.speed_config_.__dict__, "n_sub": n_sub})
-        cfg = self.speed_config_
+        self.speed_config_ = cfg
+        self.omega_scale_ = float(np.mean(prep.omega))
+        # per member and orbit: radius, phase-matched initial phase (eq. 5.12), speed profile
+        grid = np.linspace(0, 2 * np.pi, 256, endpoint=False)
         rho = np.zeros((S, n))
         theta0 = np.zeros((S, n))
         targets = np.zeros((S, n, 2 * nh + 1))
+        t0 = time.perf_counter()
         for s in range(S):
             rho[s] = self._member_rho(s, prep.mu_t, prep.branch)
             for i in range(n):
-                pts = prep.zn[i][windows[i]][:, list(self.plane_)]
-                ph = self._phases(s, i, prep, rho[s, i], pts)
+                pts = prep.zn[i][:, list(self.plane_)]
+                ph = np.unwrap(self._phases(s, i, prep, rho[s, i], pts))
                 theta0[s, i] = ph[0]
-                t = prep.times[i][windows[i]]
-                targets[s, i] = hs.speed_from_phase(t, np.unwrap(ph), nh)
-        self.omega_scale_ = float(np.mean(targets[:, :, 0]))
-        omega_scale = jnp.asarray(self.omega_scale_)
+                prof = hs.speed_from_phase(prep.times[i], ph, prep.omega[i], grid)
+                g = np.log(prof / self.omega_scale_) if cfg.form == "log" else (
+                    prof / self.omega_scale_)
+                targets[s, i] = hs.project(g, grid, nh)
+        timer.add("speed_phases", time.perf_counter() - t0)
         # regularisation of NN_Omega by leave-one-orbit-out CV on the profiles (primary member)
-        grid = (
+        grid_l = (
             [float(v) for v in self.omega_regularization_grid]
             if self.omega_regularization == "cv"
             else [float(self.omega_regularization)]
         )
         key = jax.random.key(self.seed + 1)
         pr = self.primary_
-        lam_o = grid[0]
-        if len(grid) > 1 and n >= 3:
-            masks, lams = [], []
-            for lam in grid:
+        w0 = float(np.mean(targets[:, :, 0]))
+        fit = hs.profile_trainer(cfg)
+        lam_o = grid_l[0]
+        self.speed_cv_ = {}
+        if len(grid_l) > 1 and n >= 3:
+            om0 = hs.init_speed_params(key, cfg, w0)
+            score = []
+            for lam in grid_l:
+                held = []
                 for i in range(n):
-                    masks.append(np.arange(n) != i)
-                    lams.append(lam)
-            B = len(lams)
-            om0 = _stack([hs.init_speed_params(key, cfg, self.omega_scale_)] * B)
-            _, hist = timer.run(
-                "speed_cv", hs.profile_trainer(cfg), om0, jnp.asarray(np.repeat(rho[pr:pr + 1], B, 0)),
-                jnp.asarray(prep.mu_t), jnp.asarray(np.repeat(targets[pr:pr + 1], B, 0)),
-                jnp.asarray(np.asarray(masks, float)), jnp.asarray(lams), omega_scale,
-            )
-            hist = np.asarray(hist)
-            held = np.array([hist[b, -1, b % n] for b in range(len(lams))]).reshape(len(grid), n)
-            score = np.mean(np.where(np.isfinite(held), held, np.inf), axis=1)
-            lam_o = grid[int(np.argmin(score))]
-            self.speed_cv_ = {"grid": grid, "score": score.tolist(), "selected": lam_o}
-        else:
-            self.speed_cv_ = {}
+                    w = (np.arange(n) != i).astype(float)
+                    _, hist = timer.run(
+                        "speed_cv", fit, om0, jnp.asarray(rho[pr]), jnp.asarray(prep.mu_t),
+                        jnp.asarray(targets[pr]), jnp.asarray(w), jnp.asarray(lam),
+                    )
+                    held.append(float(np.asarray(hist)[-1, i]))
+                score.append(float(np.mean(held)))
+            lam_o = grid_l[int(np.argmin(score))]
+            self.speed_cv_ = {"grid": grid_l, "score": score, "selected": lam_o}
         self.speed_regularization_ = lam_o
         # fit each member's network to its profiles, then refine on eq. 5.13
-        keys = jax.random.split(key, S)
-        om_init = []
-        for s in range(S):
-            om_init.append(hs.init_speed_params(keys[s], cfg, self.omega_scale_))
-        om_b, _ = timer.run(
-            "speed_profiles", hs.profile_trainer(cfg), _stack(om_init), jnp.asarray(rho),
-            jnp.asarray(prep.mu_t), jnp.asarray(targets), jnp.ones((S, n)),
-            jnp.full(S, lam_o), omega_scale,
-        )
-        if cfg.n_adam > 0:
-            z = np.zeros((n, n_steps, 2))
-            mask = np.zeros((n, n_steps))
-            for i in range(n):
-                w = windows[i]
-                z[i, : len(w)] = prep.zn[i][w][:, list(self.plane_)]
-                mask[i, : len(w)] = 1.0
-            om_b, _, final = timer.run(
-                "speed_series", hs.series_trainer(cfg, n_steps), om_b, members,
-                jnp.asarray(rho), jnp.asarray(prep.mu_t), jnp.asarray(theta0),
-                jnp.asarray(hs_), jnp.asarray(z), jnp.asarray(mask), jnp.asarray(lam_o),
-                omega_scale,
+        z = np.zeros((n, n_steps, 2))
+        mask = np.zeros((n, n_steps))
+        for i in range(n):
+            w = windows[i]
+            z[i, : len(w)] = prep.zn[i][w][:, list(self.plane_)]
+            mask[i, : len(w)] = 1.0
+        refine = hs.series_trainer(cfg, n_steps) if cfg.n_adam > 0 else None
+        members, losses = [], []
+        for s, k in enumerate(jax.random.split(key, S)):
+            om, _ = timer.run(
+                "speed_profiles", fit, hs.init_speed_params(k, cfg, w0), jnp.asarray(rho[s]),
+                jnp.asarray(prep.mu_t), jnp.asarray(targets[s]), jnp.ones(n), jnp.asarray(lam_o),
             )
-            self.speed_losses_ = [float(v) for v in np.asarray(final)]
-        else:
-            self.speed_losses_ = []
-        self.speed_params_ = _to_numpy(om_b)
+            if refine is not None:
+                om_r, hist, final = timer.run(
+                    "speed_series", refine, om, _index(self.map_params_, s), jnp.asarray(rho[s]),
+                    jnp.asarray(prep.mu_t), jnp.asarray(theta0[s]), jnp.asarray(h),
+                    jnp.asarray(z), jnp.asarray(mask), jnp.asarray(lam_o),
+                    jnp.asarray(self.omega_scale_),
+                )
+                start = float(np.mean(np.asarray(hist)[0]))
+                end_ = float(np.mean(np.asarray(jax.device_get(final))))
+                # keep the refinement only if it improved eq. 5.13 (it starts from the profiles)
+                if np.isfinite(end_) and end_ <= start:
+                    om = om_r
+                losses.append({"series_start": start, "series_end": end_})
+            members.append(om)
+        self.speed_params_ = _to_numpy(_stack(members))
+        self.speed_losses_ = losses
         self._speed_targets = targets
 
     # ------------------------------------------------------- other signals (U_3..m)
@@ -747,7 +743,7 @@ class HopfHybridModel:
         s = self.primary_ if member is None else member
         mu0_t = self._mu0_t(s)
         T = self._period(s, np.array([0.0]), np.array([mu0_t]))[0]
-        a2 = raw_a2(self._a2(s), self.mu_s_)
+        a2 = raw_a2(self._a2(s), self.mu_s_, self.q5_)
         return {
             "param": mu0_t * self.mu_s_ + self.mu_c_,
             "omega": 2 * math.pi / T,
@@ -782,22 +778,32 @@ class HopfHybridModel:
     def a2_(self) -> float:
         """:math:`a_2` of eq. 5.3 in raw parameter units (primary member)."""
         self._check_fitted()
-        return raw_a2(self._a2(self.primary_), self.mu_s_)
+        return raw_a2(self._a2(self.primary_), self.mu_s_, self.q5_)
 
     @property
     def omega0_(self) -> float:
-        """:math:`\\omega_0` of eq. 5.10 [rad/s] (primary member)."""
+        """:math:`\\omega_0` of eq. 5.10 [rad/s]: the speed's constant term (primary member)."""
         self._check_fitted()
-        return float(self.speed_params_["w0"][self.primary_])
+        w0 = float(self.speed_params_["w0"][self.primary_])
+        return self.omega_scale_ * (math.exp(w0) if self.speed_config_.form == "log" else w0)
+
+    def _speed_grid(self, s: int, rho: np.ndarray, mu_t: np.ndarray) -> np.ndarray:
+        """:math:`\\Omega` on 512 uniform phases for each ``(rho, mu_t)``, shape ``(n, 512)``."""
+        om = _index(self.speed_params_, s)
+        return np.asarray(
+            hs.speed_on_grid_fn(self.speed_config_)(
+                om, jnp.asarray(rho, dtype=float), jnp.asarray(mu_t, dtype=float),
+                jnp.asarray(self.omega_scale_),
+            )
+        )
 
     def _period(self, s: int, rho: np.ndarray, mu_t: np.ndarray) -> np.ndarray:
-        om = _index(self.speed_params_, s)
-        T, vmin = hs.period_fn(self.speed_config_)(
-            om, jnp.asarray(rho, dtype=float), jnp.asarray(mu_t, dtype=float),
-            jnp.asarray(self.omega_scale_),
-        )
-        T, vmin = np.asarray(T), np.asarray(vmin)
-        return np.where(vmin > 0, T, np.nan)
+        """Period :math:`T = \\int_0^{2\\pi} \\mathrm d\\theta/\\Omega` (NaN where
+        :math:`\\Omega` is not positive)."""
+        v = self._speed_grid(s, np.atleast_1d(rho), np.atleast_1d(mu_t))
+        with np.errstate(divide="ignore"):
+            T = 2 * np.pi * np.mean(1.0 / v, axis=1)
+        return np.where(np.min(v, axis=1) > 0, T, np.nan)
 
     def _cycle_points(self, s: int, mu_t: float, rho: float, phi: np.ndarray) -> np.ndarray:
         """All signals (data units) at normal-form phases ``phi`` of the cycle ``rho``."""
@@ -1007,23 +1013,18 @@ class HopfHybridModel:
     def _phase_of_time(self, s, mu_t, rho, times, theta0):
         """:math:`\\theta(t)` of the phase equation, exactly by inverting
         :math:`t(\\theta) = \\int \\mathrm d\\theta/\\Omega` on a fine grid (no ODE solve)."""
-        om = _index(self.speed_params_, s)
-        prof = np.asarray(
-            _speed_profile(om, self.speed_config_, rho, mu_t, self.omega_scale_)
-        )
-        grid = np.linspace(0, 2 * np.pi, 4097)
-        basis = np.asarray(hs.fourier_design(jnp.asarray(grid), self.omega_harmonics))
-        speed = basis @ prof
+        speed = self._speed_grid(s, np.array([rho]), np.array([mu_t]))[0]
         if np.any(speed <= 0):
             raise ConvergenceError(
                 "The learnt oscillation speed vanishes on this cycle; the model cannot produce "
                 "a time series here."
             )
-        inv = 1.0 / speed
+        n = len(speed)
+        grid = np.linspace(0, 2 * np.pi, n + 1)
+        inv = 1.0 / np.concatenate([speed, speed[:1]])
         cum = np.concatenate([[0.0], np.cumsum(0.5 * (inv[1:] + inv[:-1]) * np.diff(grid))])
         T = cum[-1]
-        th0 = np.mod(theta0, 2 * np.pi)
-        tau = np.interp(th0, grid, cum) + (np.asarray(times) - times[0])
+        tau = np.interp(np.mod(theta0, 2 * np.pi), grid, cum) + (np.asarray(times) - times[0])
         k = np.floor(tau / T)
         return np.interp(tau - k * T, cum, grid) + 2 * np.pi * k, T
 
@@ -1161,7 +1162,7 @@ class HopfHybridModel:
         hopf = self.hopf_point()
         band = {
             "mu0": _spread([self.hopf_point(s)["param"] for s in range(self.n_members_)]),
-            "a2": _spread([raw_a2(self._a2(s), self.mu_s_) for s in range(self.n_members_)]),
+            "a2": _spread([raw_a2(self._a2(s), self.mu_s_, self.q5_) for s in range(self.n_members_)]),
         }
         folds = [f["param"] for s in range(self.n_members_) if (f := self.cycle_fold(s))]
         if folds:
@@ -1295,7 +1296,7 @@ class HopfHybridModel:
                 tdef, [_checked(arrays[f"map_{j}"], leaf.shape) for j, leaf in enumerate(leaves)]
             )
             scfg = model.speed_config_
-            skel_speed = _stack([hs.init_speed_params(jax.random.key(0), scfg, 1.0)] * S)
+            skel_speed = _stack([hs.init_speed_params(jax.random.key(0), scfg)] * S)
             leaves, tdef = jax.tree_util.tree_flatten(skel_speed)
             model.speed_params_ = jax.tree_util.tree_unflatten(
                 tdef,
@@ -1345,18 +1346,19 @@ def _nan_list(v: np.ndarray) -> list:
 
 
 def _measured_amplitude(sig: np.ndarray, omega: float, fs: float) -> np.ndarray:
-    """Noise-robust ``max_t |z_k|`` of a record (Fourier fit at its frequency, offset kept)."""
+    """Noise-robust ``max_t |z_k|`` of a record: maximum of its 20-harmonic Fourier series at
+    the record's frequency (offset kept: amplitudes are about the signals' zero)."""
     from bifid.data import fourier_fit
 
     out = []
-    theta = np.linspace(0, 2 * np.pi, 1024, endpoint=False)
+    theta = np.linspace(0, 2 * np.pi, 2048, endpoint=False)
+    nh = int(max(1, min(20, (len(sig) - 1) // 8)))
     for k in range(sig.shape[1]):
-        coef = fourier_fit(sig[:, k], omega, fs, 10)
-        n = (len(coef) - 1) // 2
-        kk = np.arange(1, n + 1)
-        val = coef[0] + np.cos(np.outer(theta, kk)) @ coef[1 : n + 1] + np.sin(
+        coef = fourier_fit(sig[:, k], omega, fs, nh)  # [a0, a1, b1, a2, b2, ...]
+        kk = np.arange(1, (len(coef) - 1) // 2 + 1)
+        val = coef[0] + np.cos(np.outer(theta, kk)) @ coef[1::2] + np.sin(
             np.outer(theta, kk)
-        ) @ coef[n + 1 :]
+        ) @ coef[2::2]
         out.append(np.max(np.abs(val)))
     return np.asarray(out)
 
@@ -1384,15 +1386,3 @@ def _u12_compiled(width: int, depth: int):
             lambda mp, u, m: jax.vmap(lambda ui: hm.u12(mp, static, ui, m))(u)
         )
     return _U12_CACHE[key]
-
-
-_PROFILE_CACHE: dict = {}
-
-
-def _speed_profile(om, cfg: hs.SpeedConfig, rho: float, mu_t: float, omega_scale: float):
-    if cfg not in _PROFILE_CACHE:
-        static = hm.mlp_static(2, 2 * cfg.n_harmonics + 1, cfg.width, cfg.depth)
-        _PROFILE_CACHE[cfg] = jax.jit(
-            lambda o, r, m, w: hs.speed_profile(o, static, r, m, w, cfg.n_harmonics)
-        )
-    return _PROFILE_CACHE[cfg](om, jnp.asarray(rho), jnp.asarray(mu_t), jnp.asarray(omega_scale))

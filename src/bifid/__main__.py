@@ -1,0 +1,5 @@
+"""``python -m bifid`` runs the ``bifid`` command."""
+
+from bifid.cli import main
+
+main()

@@ -1,0 +1,88 @@
+"""Forced responses of the Duffing oscillator: harmonic balance, folds, backbone."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from bifid.continuation import backbone, first_harmonic, frc, scurve
+from bifid.systems import get_system
+
+ZETA, GAMMA = 0.01, 0.5
+
+
+@pytest.fixture(scope="module")
+def duffing():
+    return get_system("duffing")
+
+
+def _first_harmonic_amplitude(br, M):
+    V = br.solutions[:, : M * 2].reshape(-1, M, 2)[:, :, 0]
+    a1, b1 = first_harmonic(V.T)
+    return np.hypot(a1, b1)
+
+
+def test_small_forcing_frc_matches_harmonic_balance(duffing):
+    """Check the FRC at small F against first-order harmonic balance.
+
+    ((1 - W^2 + 3/4 g A^2)^2 + (2 z W)^2) A^2 = F^2 for the first-harmonic amplitude A.
+    """
+    F = 0.002
+    br = frc(duffing, F, (0.9, 1.1), n_mesh=32)
+    A = _first_harmonic_amplitude(br, 32)
+    W = br.data["omega"]
+    hb = ((1 - W**2 + 0.75 * GAMMA * A**2) ** 2 + (2 * ZETA * W) ** 2) * A**2
+    assert np.max(np.abs(hb / F**2 - 1)) < 2e-3
+    assert br.status == "bounds"
+    # phase: lag rises through pi/2 at the peak
+    k = int(np.argmax(br.data["observed_amplitude"]))
+    assert br.data["phase"][k] == pytest.approx(np.pi / 2, abs=0.05)
+    assert br.data["phase"][0] < 0.2 and br.data["phase"][-1] > np.pi - 0.3
+
+
+def test_scurve_folds_agree_with_frc_folds(duffing):
+    """Check that S-curve folds at a FRC fold's frequency sit at the FRC's forcing."""
+    F = 0.01
+    fr = frc(duffing, F, (0.95, 1.15), n_mesh=32)
+    folds = fr.special("fold")
+    assert len(folds) == 2
+    lo, hi = sorted(f.param for f in folds)
+    # unstable exactly between the two folds (the middle branch of the bistable region)
+    for sp in folds:
+        sc = scurve(duffing, sp.param, (0.0, 0.03), n_mesh=32)
+        Fs = [f.param for f in sc.special("fold")]
+        assert min(abs(np.array(Fs) - F)) < 1e-7
+    assert 1.02 < lo < hi < 1.05
+
+
+def test_scurve_at_1p05_has_two_folds_and_unstable_middle(duffing):
+    """Check the S-curve at Omega = 1.05: folds near F = 0.011 and 0.022, unstable between."""
+    sc = scurve(duffing, 1.05, (0.0, 0.04), n_mesh=32)
+    Fs = sorted(f.param for f in sc.special("fold"))
+    assert len(Fs) == 2
+    assert Fs[0] == pytest.approx(0.0109, rel=0.02) and Fs[1] == pytest.approx(0.0216, rel=0.02)
+    a, b = sorted(f.index for f in sc.special("fold"))
+    assert not sc.stable[a + 2 : b].any()
+    assert sc.stable[: a].all() and sc.stable[b + 2 :].all()
+
+
+def test_backbone_matches_first_order_frequency_amplitude_relation(duffing):
+    """Check the quadrature locus against W = sqrt(1 + 3/4 g A^2) at small amplitude."""
+    bb = backbone(duffing, (0.01, 0.3), n_mesh=32)
+    A, W = bb.data["observed_amplitude"], bb.data["omega"]
+    assert np.all(np.diff(W) > 0)  # hardening
+    small = A < 0.2
+    assert np.max(np.abs(W[small] - np.sqrt(1 + 0.75 * GAMMA * A[small] ** 2))) < 2e-3
+    assert np.allclose(np.cos(bb.data["phase"]), 0.0, atol=1e-8)
+
+
+def test_bad_inputs_raise_clear_errors(duffing):
+    """Check the errors for an autonomous system, a degenerate range and non-finite forcing."""
+    from bifid.errors import BifidInputError
+
+    with pytest.raises(BifidInputError, match="autonomous"):
+        frc(get_system("hopf"), 0.1, (0.9, 1.1))
+    with pytest.raises(BifidInputError, match="two different finite"):
+        frc(duffing, 0.01, (1.0, 1.0))
+    with pytest.raises(BifidInputError, match="finite"):
+        frc(duffing, float("nan"), (0.9, 1.1))
