@@ -58,11 +58,10 @@ def test_user_errors_exit_2_with_one_line_and_no_traceback(args, needle):
 
 def test_newton_failure_is_reported_not_hidden():
     """Check a failing continuation exits 3 with complete=false, never a silent partial branch."""
-    # ds_min cannot be reached with a huge Newton tolerance demand: force failure via max-steps=1?
     # Use an FRC start where the response cannot be found: enormous forcing at resonance.
     r = run("frc", "duffing", "--forcing", "1e6", "--omega-range", "1.0", "1.1", "--json",
             "--quiet")
-    assert r.returncode in (2, 3), r.stderr
+    assert r.returncode == 3, r.stderr
     assert "Traceback" not in r.stderr
     if r.stdout:
         assert json.loads(r.stdout)["complete"] is False

@@ -7,7 +7,12 @@ import pytest
 import scipy.linalg
 import scipy.optimize
 
-from bifid.continuation import ContinuationOptions, continue_from_hopf, periodic_orbits, resample_orbit
+from bifid.continuation import (
+    ContinuationOptions,
+    continue_from_hopf,
+    periodic_orbits,
+    resample_orbit,
+)
 from bifid.simulate import simulate
 from bifid.systems import flutter_matrices, get_system
 
@@ -49,7 +54,7 @@ def test_hopf_speed_matches_eigenvalue_root_finding(flutter):
 
 def test_unstable_branch_folds_into_stable_branch(flutter):
     """Check: unstable orbits from the Hopf point, a cycle fold, then stable orbits."""
-    _, eq, br = flutter
+    _, _eq, br = flutter
     (fold,) = br.special("cycle_fold")
     k = fold.index
     assert not br.stable[1 : k + 1].any()
@@ -57,12 +62,12 @@ def test_unstable_branch_folds_into_stable_branch(flutter):
     assert 14.5 < fold.param < 15.5
     assert fold.param <= br.params.min() + 1e-9  # the fold is the leftmost point
     # a fold is a parameter extremum: it lies just beyond both bracketing points
-    lo, hi = sorted(fold.interval)
+    lo, _hi = sorted(fold.interval)
     assert lo - 0.01 < fold.param <= lo + 1e-12
 
 
 def test_stable_orbit_matches_long_simulation_and_one_trivial_multiplier(flutter):
-    """Check a stable orbit's amplitudes against direct simulation (1e-5 rel); one multiplier = 1."""
+    """Check a stable orbit against direct simulation (1e-5 rel) and its one trivial multiplier."""
     s, _, br = flutter
     i = int(np.argmin(np.abs(br.params - 16.5) + 100 * (~br.stable)))
     U, T = float(br.params[i]), float(br.data["period"][i])

@@ -86,3 +86,12 @@ def test_bad_inputs_raise_clear_errors(duffing):
         frc(duffing, 0.01, (1.0, 1.0))
     with pytest.raises(BifidInputError, match="finite"):
         frc(duffing, float("nan"), (0.9, 1.1))
+
+
+def test_coarse_mesh_in_lightly_damped_system_warns():
+    """Check that an under-resolved forced response raises a ResolutionWarning."""
+    from bifid.errors import ResolutionWarning
+
+    sp = get_system("shaw_pierre")
+    with pytest.warns(ResolutionWarning, match="Increase n_mesh"):
+        frc(sp, 0.02, (0.98, 1.02), n_mesh=8)

@@ -107,8 +107,8 @@ def switch_off_test(
     per-period first-harmonic amplitude from ``amplitude`` (the converged orbit's), the
     orbit is
 
-    - unstable if ``|d|`` grows by more than ``threshold`` (least-squares growth rate of
-      ``log|d_j|``), or the final deviation exceeds ``escape``,
+    - unstable if ``|d|`` (mean of the last two periods against the larger of the first
+      two) grows by more than ``threshold``, or the final deviation exceeds ``escape``,
     - stable if it decays by the same factor,
     - undecided otherwise.
 
@@ -144,15 +144,14 @@ def switch_off_test(
     if d.shape[0] < 2:
         return StabilityResult(None, math.nan, d), m
     ad = np.abs(d)
-    floor = 1e-6
-    logd = np.log(np.maximum(ad, floor))
-    j = np.arange(d.shape[0])
-    slope = float(np.polyfit(j, logd, 1)[0])
-    growth = math.exp(slope)
-    total = math.exp(slope * (d.shape[0] - 1))
-    if ad[-1] > escape or (total > threshold and ad[-1] > ad[0]):
+    # growth per period from the first and last deviations (robust to a sign change of d)
+    start = float(np.max(ad[:2]))
+    end = float(np.mean(ad[-2:])) if ad.shape[0] >= 4 else float(ad[-1])
+    span = max(ad.shape[0] - 1.5, 1.0)
+    growth = (max(end, 1e-12) / max(start, 1e-12)) ** (1.0 / span)
+    if end > escape or end > threshold * start:
         stable: bool | None = False
-    elif total < 1.0 / threshold and ad[-1] < ad[0]:
+    elif end < start / threshold:
         stable = True
     else:
         stable = None

@@ -251,8 +251,9 @@ class VirtualRig(AbstractRig):
         Actuator limit: ``|u| <= saturation``.
     derivative : {"samples", "state"}
         How ``"<output>_dot"`` signals are obtained (module docstring).
-    derivative_cutoff : float
-        Cut-off [Hz] of the low-pass on the differenced samples.
+    derivative_cutoff : float, optional
+        Cut-off [Hz] of the low-pass on the differenced samples (default
+        ``min(100 Hz, sample_rate / 10)``).
     substeps : int
         Runge–Kutta steps per sample interval.
     seed : int
@@ -285,7 +286,7 @@ class VirtualRig(AbstractRig):
         noise: float | Sequence[float] | Mapping[str, float] | None = None,
         saturation: float | None = None,
         derivative: str = "samples",
-        derivative_cutoff: float = 100.0,
+        derivative_cutoff: float | None = None,
         substeps: int = 1,
         seed: int = 0,
         x0: Sequence[float] | None = None,
@@ -314,7 +315,7 @@ class VirtualRig(AbstractRig):
                 f"derivative must be 'samples' or 'state', got {derivative!r}."
             )
         self._derivative = derivative
-        fc = float(derivative_cutoff)
+        fc = min(100.0, sr / 10.0) if derivative_cutoff is None else float(derivative_cutoff)
         if not (fc > 0 and math.isfinite(fc)):
             raise BifidInputError(f"derivative_cutoff must be > 0 Hz, got {derivative_cutoff!r}.")
         self._cutoff = fc

@@ -37,7 +37,10 @@ def _load_commands() -> None:
 
 
 def _enable_compilation_cache() -> None:
-    """Persistent XLA cache so repeated commands skip JIT compilation (BIFID_JAX_CACHE="" disables)."""
+    """Persistent XLA cache: repeated commands skip JIT compilation.
+
+    ``BIFID_JAX_CACHE=""`` disables it; another path moves it.
+    """
     import os
     from pathlib import Path
 

@@ -264,7 +264,8 @@ def frc_cmd(
             "settings": run_info("frc", system=system_name, forcing=forcing, omega_range=[lo, hi],
                                  mesh=mesh, parameters=system.param_dict(p)),
         }
-        _forced_outputs(payload, [br], system, plot, out, "omega", f"{system_name}: FRC, F = {forcing:g}")
+        _forced_outputs(payload, [br], system, plot, out, "omega",
+                        f"{system_name}: FRC, F = {forcing:g}")
         summary = (f"{system_name}: FRC at F = {forcing:g}: peak {amp[k]:.6g} at Ω = "
                    f"{br.data['omega'][k]:.6g}; folds at Ω = "
                    + (", ".join(f"{f['omega']:.8g}" for f in payload["folds"]) or "none"))

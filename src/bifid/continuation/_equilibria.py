@@ -86,7 +86,7 @@ def _hopf_kernels(field: Callable):
             _, err, it = state
             return (it < 30) & (err > 1e-13) & jnp.isfinite(err)
 
-        z, err, it = jax.lax.while_loop(cond, body, (z, jnp.asarray(1e300), 0))
+        z, err, _it = jax.lax.while_loop(cond, body, (z, jnp.asarray(1e300), 0))
         return z, err, jnp.max(jnp.abs(hopf_residual(z, args)))
 
     return jax.jit(jac), newton

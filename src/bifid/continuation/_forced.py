@@ -106,7 +106,8 @@ def _forced_branch(system, kind, param, ys, result, p, idx_free, M, options, obs
     a1, b1 = first_harmonic(np.moveaxis(orbits[:, :, obs], 1, 0))
     phase = np.arctan2(b1, a1)
     if kind != "backbone":
-        phase = np.where(phase < -np.pi / 2, phase + 2 * np.pi, phase)  # continuous lag in (-pi/2, 3pi/2]
+        # continuous lag in (-pi/2, 3pi/2]
+        phase = np.where(phase < -np.pi / 2, phase + 2 * np.pi, phase)
     tails = np.array([spectral_tail(o) for o in orbits])
     check_resolution(tails, M, resolution_tol, f"forced responses of {system.name!r}")
     specials: list[SpecialPoint] = []

@@ -259,7 +259,8 @@ def _palc(problem, y0, t0, args, options, weights, update_args, stop, progress, 
             return PalcResult(
                 ys=np.empty((0, n)), tangents=np.empty((0, n)), iterations=np.empty(0, int),
                 status="failed",
-                message=f"Newton did not converge at the starting point (parameter {float(y[pi]):.6g}).",
+                message="Newton did not converge at the starting point "
+                f"(parameter {float(y[pi]):.6g}).",
                 args=args,
             )
         y = y_c

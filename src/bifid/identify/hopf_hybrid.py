@@ -57,7 +57,7 @@ from bifid.identify._hopf_normal_form import (
     raw_a2,
 )
 from bifid.identify._hopf_observe import ObservationModel, fit_observation
-from bifid.identify._hopf_prepare import Prepared, prepare
+from bifid.identify._hopf_prepare import Prepared, choose_harmonics, prepare
 
 Array = jnp.ndarray
 
@@ -131,10 +131,12 @@ class HopfHybridModel:
     plane : pair of str or int, optional
         The two signals :math:`(z_1, z_2)` whose orbits are closed curves around a centre
         (default: the first two signals).
-    n_harmonics : int
-        Harmonics of the polar representation (eq. 5.5).
-    n_points : int
-        Points per model cycle in the map loss.
+    n_harmonics : int or "auto"
+        Harmonics of the polar representation (eq. 5.5). ``"auto"``: the smallest number
+        representing every measured orbit to 0.3 % of its radius above the noise floor
+        (:func:`~bifid.identify._hopf_prepare.choose_harmonics`).
+    n_points : int or "auto"
+        Points per model cycle in the map loss (``"auto"``: ``max(64, 4 n_harmonics + 8)``).
     width, depth : int
         Hidden width and layers of :math:`\mathrm{NN}_{\Theta_U}`.
     n_linear : int
@@ -184,8 +186,8 @@ class HopfHybridModel:
         criticality: str = "auto",
         quintic: bool | None = None,
         plane: tuple[str | int, str | int] | None = None,
-        n_harmonics: int = 8,
-        n_points: int = 64,
+        n_harmonics: int | str = "auto",
+        n_points: int | str = "auto",
         width: int = 16,
         depth: int = 2,
         n_linear: int = 100,
@@ -269,7 +271,11 @@ class HopfHybridModel:
         need(self.criticality in ("auto", "subcritical", "supercritical"), "criticality",
              "'auto', 'subcritical' or 'supercritical'")
         need(self.quintic in (None, True, False), "quintic", "True, False or None")
-        for name, lo in (("n_harmonics", 1), ("n_points", 16), ("width", 1), ("depth", 1),
+        need(self.n_harmonics == "auto" or (isinstance(self.n_harmonics, int)
+             and self.n_harmonics >= 1), "n_harmonics", "'auto' or an int >= 1")
+        need(self.n_points == "auto" or (isinstance(self.n_points, int) and self.n_points >= 16),
+             "n_points", "'auto' or an int >= 16")
+        for name, lo in (("width", 1), ("depth", 1),
                          ("n_ensemble", 1), ("omega_width", 1), ("omega_depth", 1),
                          ("omega_samples", 32)):
             need(isinstance(getattr(self, name), int) and getattr(self, name) >= lo, name,
@@ -278,8 +284,6 @@ class HopfHybridModel:
                      "omega_fit_iterations", "omega_iterations"):
             need(isinstance(getattr(self, name), int) and getattr(self, name) >= 0, name,
                  "an int >= 0")
-        need(self.n_points >= 4 * self.n_harmonics + 2, "n_points",
-             f">= 4 * n_harmonics + 2 = {4 * self.n_harmonics + 2}")
         need(self.n_adam + self.n_lbfgs >= 1, "n_adam", "> 0 when n_lbfgs is 0")
         for name in ("learning_rate", "omega_learning_rate", "omega_periods"):
             v = getattr(self, name)
@@ -325,7 +329,7 @@ class HopfHybridModel:
         t_start = time.perf_counter()
         d = as_lco_data(data, signal_names)
         self._setup(d)
-        prep = prepare(d, self.plane_, self.n_harmonics)
+        prep = prepare(d, self.plane_, self.map_config_.n_harmonics)
         self.mu_c_, self.mu_s_, self.z_scale_ = prep.mu_c, prep.mu_s, prep.z_scale
         self.direction_ = prep.direction
         timer = _Timer()
@@ -393,9 +397,19 @@ class HopfHybridModel:
         self.param_name_ = d.param_name
         self.param_units_ = d.param_units
         self.signal_units_ = dict(d.signal_units)
+        nh = (
+            choose_harmonics(d, self.plane_) if self.n_harmonics == "auto" else self.n_harmonics
+        )
+        n_points = max(64, 8 * math.ceil((4 * nh + 8) / 8)) if self.n_points == "auto" \
+            else self.n_points
+        if n_points < 4 * nh + 2:
+            raise BifidInputError(
+                f"n_points ({n_points}) must be >= 4 * n_harmonics + 2 = {4 * nh + 2}."
+            )
+        self.n_harmonics_ = nh
         self.map_config_ = hm.MapConfig(
-            n_harmonics=self.n_harmonics,
-            n_points=self.n_points,
+            n_harmonics=nh,
+            n_points=n_points,
             width=self.width,
             depth=self.depth,
             q5=self.q5_,
@@ -1112,7 +1126,7 @@ class HopfHybridModel:
             keep = np.arange(d.n_records) != i
             model = HopfHybridModel(**hyper).fit(d.subset(keep))
             rec = d.subset(np.array([i]))
-            prep = prepare(rec, self.plane_, self.n_harmonics, mu_c=self.mu_c_, mu_s=self.mu_s_,
+            prep = prepare(rec, self.plane_, self.map_config_.n_harmonics, mu_c=self.mu_c_, mu_s=self.mu_s_,
                            z_scale=self.z_scale_)
             meas = _measured_amplitude(rec.signals[0], prep.omega[0], rec.sample_rates[0])
             branch = "unstable" if rec.branch[0] == UNSTABLE else "stable"

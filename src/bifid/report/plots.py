@@ -14,10 +14,10 @@ from pathlib import Path
 import matplotlib
 
 matplotlib.use("Agg")
-import matplotlib.pyplot as plt  # noqa: E402
-import numpy as np  # noqa: E402
+import matplotlib.pyplot as plt
+import numpy as np
 
-from bifid.continuation import Branch  # noqa: E402
+from bifid.continuation import Branch
 
 STABLE = dict(color="tab:blue", lw=1.8)
 UNSTABLE = dict(color="tab:red", lw=1.5, ls="--")
@@ -33,16 +33,29 @@ def _segments(x: np.ndarray, y: np.ndarray, stable: np.ndarray):
             start = i
 
 
-def plot_curve(ax, x, y, stable, label: str | None = None) -> None:
+def plot_curve(ax, x, y, stable, label: str | None = None, color: str | None = None) -> None:
     """Plot a curve solid where stable and dashed where unstable."""
     first = {True: True, False: True}
     for xs, ys, st in _segments(np.asarray(x), np.asarray(y), np.asarray(stable)):
-        style = STABLE if st else UNSTABLE
+        style = dict(STABLE if st else UNSTABLE)
+        if color is not None:
+            style["color"] = color
         lab = None
         if first[st]:
             lab = f"{label + ' ' if label else ''}{'stable' if st else 'unstable'}"
             first[st] = False
         ax.plot(xs, ys, label=lab, **style)
+
+
+def _with_hopf_points(eq: Branch, k: int):
+    """Equilibrium curve with the located Hopf points inserted, so stability switches there."""
+    x, y, st = list(eq.params), list(np.abs(eq.solutions[:, k])), list(eq.stable)
+    for sp in sorted(eq.special("hopf"), key=lambda s: -s.index):
+        i = sp.index + 1
+        x.insert(i, sp.param)
+        y.insert(i, abs(float(sp.solution[k])))
+        st.insert(i, st[i])  # the next point's stability starts at the Hopf point
+    return np.array(x), np.array(y), np.array(st)
 
 
 def save_figure(fig, path: str | os.PathLike) -> Path:
@@ -53,6 +66,9 @@ def save_figure(fig, path: str | os.PathLike) -> Path:
     os.close(fd)
     try:
         fig.savefig(tmp, dpi=130, bbox_inches="tight")
+        umask = os.umask(0)
+        os.umask(umask)
+        os.chmod(tmp, 0o666 & ~umask)  # mkstemp creates 0600; give the usual permissions
         os.replace(tmp, path)
     finally:
         if os.path.exists(tmp):
@@ -82,8 +98,8 @@ def bifurcation_diagram(
     for ax, state in zip(axes[:, 0], states, strict=True):
         if equilibria is not None:
             k = equilibria.meta["states"].index(state)
-            plot_curve(ax, equilibria.params, np.abs(equilibria.solutions[:, k]),
-                       equilibria.stable, label="equilibria")
+            x, y, st = _with_hopf_points(equilibria, k)
+            plot_curve(ax, x, y, st, label="equilibria", color="0.35")
         for br in orbits:
             k = br.meta["states"].index(state)
             plot_curve(ax, br.params, br.data["amplitude"][:, k], br.stable, label="orbits")

@@ -234,7 +234,9 @@ def register(name: str, factory: Callable[[], System] | System, *, overwrite: bo
     2
     """
     if name in _REGISTRY and not overwrite:
-        raise BifidInputError(f"A system named {name!r} is already registered; pass overwrite=True.")
+        raise BifidInputError(
+            f"A system named {name!r} is already registered; pass overwrite=True."
+        )
     if isinstance(factory, System):
         system = factory
         _REGISTRY[name] = lambda: system

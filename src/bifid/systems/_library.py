@@ -29,7 +29,8 @@ def hopf() -> System:
         \dot u_1 = (\mu-\mu_0)u_1 - \omega_0 u_2 + a_2 u_1 r^2 - q_5 u_1 r^4,\quad
         \dot u_2 = (\mu-\mu_0)u_2 + \omega_0 u_1 + a_2 u_2 r^2 - q_5 u_2 r^4,
 
-    with :math:`r^2 = u_1^2+u_2^2`; in polar form :math:`\dot r = (\mu-\mu_0) r + a_2 r^3 - q_5 r^5`,
+    with :math:`r^2 = u_1^2+u_2^2`; in polar form
+    :math:`\dot r = (\mu-\mu_0) r + a_2 r^3 - q_5 r^5`,
     :math:`\dot\theta = \omega_0`. With ``a2 > 0`` and ``q5 = 1`` the Hopf point at
     :math:`\mu_0` is subcritical and the cycles fold at :math:`\mu_0 - a_2^2/4`; set
     ``q5 = 0`` and ``a2 < 0`` for the supercritical case of §5.4.1.
@@ -233,7 +234,8 @@ def shaw_pierre() -> System:
 
     .. math::
 
-        \ddot x_1 = -2k x_1 + k x_2 - (c_1+c_2)\dot x_1 + c_2\dot x_2 - \kappa x_1^3 + F\cos\Omega t,\\
+        \ddot x_1 = -2k x_1 + k x_2 - (c_1+c_2)\dot x_1 + c_2\dot x_2 - \kappa x_1^3
+                    + F\cos\Omega t,\\
         \ddot x_2 = k x_1 - 2k x_2 + c_2\dot x_1 - (c_1+c_2)\dot x_2 + F\cos\Omega t,
 
     with k = 1, c1 = 0.003, c2 = c1/√3, κ = 0.003; observed coordinate ``x1``. The

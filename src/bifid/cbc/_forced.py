@@ -1,0 +1,636 @@
+"""CBC of harmonically forced systems, thesis §3.2: S-curves and frequency response curves.
+
+The rig is excited by ``γ cos(θ - ψ)``, ``θ̇ = Ω`` (``Â = γ cos ψ``, ``B̂ = γ sin ψ`` in
+the notation of eq. 3.1), and a PD controller (eq. 3.2) on the observed coordinate
+``x`` tracks the target of eq. 3.3
+
+.. math:: x^*(θ) = A_0^*/2 + \\sum_{j=1}^q A_j^*\\cos jθ + B_j^*\\sin jθ .
+
+The response's coefficients ``p`` are measured over whole forcing periods after
+settling. Non-invasiveness is ``p(p*) = p*`` (eq. 3.4).
+
+**S-curves** (:func:`scurve_cbc`, §3.2.1). The target's fundamental ``(A_1^*, B_1^*)``
+is the free variable of the curve (``B_1^* = 0`` fixes the phase origin of the
+response); at each point
+
+- the higher harmonics follow the response by Picard iteration (eq. 3.8),
+- the fundamental component of the control is moved into the force (eq. 3.6):
+  ``Â ← Â + k_p ΔA_1 + Ω k_d ΔB_1``, ``B̂ ← B̂ + k_p ΔB_1 - Ω k_d ΔA_1``
+  (``Δ = p* - p``), ``γ = \\sqrt{Â² + B̂²}``,
+
+until the whole control signal vanishes. Successive points are predicted along the
+secant in ``(A_1, γ)`` (the arclength condition eq. 3.5 in those coordinates), so the
+S-curve is followed round both folds: the response amplitude is monotone along an
+S-curve even where ``γ`` folds back.
+
+**FRCs** (:func:`frc_cbc`). At fixed ``γ`` the fundamental can no longer be absorbed into
+the force, so ``(A_1^*, B_1^*, Ω)`` are solved by Newton's method (finite-difference
+Jacobian updated by Broyden's rule) on ``(A_1^* - A_1, B_1^* - B_1) = 0`` plus the
+pseudo-arclength condition, with Picard iteration on the higher harmonics inside each
+evaluation; this follows the FRC through its bistable region.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+from collections.abc import Callable
+from dataclasses import asdict, dataclass, field
+from typing import Any
+
+import numpy as np
+
+from bifid.cbc._controllers import FourierTarget, PDController
+from bifid.cbc._fourier import evaluate_series, fourier_project, whole_periods
+from bifid.cbc._rig import AbstractRig, Measurement
+from bifid.cbc._stability import switch_off_test
+from bifid.errors import BifidInputError, ConvergenceError, ConvergenceWarning
+
+__all__ = [
+    "ForcedCBCOptions",
+    "ForcedFailure",
+    "ForcedPoint",
+    "folds_of",
+    "frc_cbc",
+    "scurve_cbc",
+]
+
+
+@dataclass(frozen=True)
+class ForcedCBCOptions:
+    """Numbers that steer forced CBC; checked when built.
+
+    Parameters
+    ----------
+    signal : str
+        Observed (controlled) output; the controller uses it and ``"<signal>_dot"``.
+    kp, kd : float
+        PD gains (eq. 3.2).
+    n_harmonics : int
+        ``q`` of the target (eq. 3.3; Example 3.1 uses 5).
+    settle_periods, measure_periods : float
+        Forcing periods to wait after a change and to record.
+    tol : float
+        Relative tolerance: ``max |p* - p| <= tol * A_1^*`` (plus the noise floor).
+    picard_max : int
+        Iterations (eqs. 3.6 + 3.8) per point.
+    ds, ds_max : float
+        Arclength step (and its bound) in the normalised ``(A_1 / a_ref, γ / γ_ref)``
+        plane (S-curve) or ``(A_1/a_ref, B_1/a_ref, Ω/Ω_ref)`` (FRC).
+    max_points : int
+    max_turn : float
+        Largest angle [deg] between successive secants before the step is halved (resolves
+        the folds).
+    newton_max : int
+        Newton–Broyden iterations per FRC point.
+    stability : bool
+        Label points by switching the controller off (slow for lightly damped rigs).
+    watch_periods : float
+    """
+
+    signal: str = "q"
+    kp: float = 0.5
+    kd: float = 0.5
+    n_harmonics: int = 5
+    settle_periods: float = 12.0
+    measure_periods: float = 4.0
+    tol: float = 1e-4
+    picard_max: int = 40
+    ds: float = 0.05
+    ds_max: float = 0.1
+    max_points: int = 200
+    newton_max: int = 10
+    stability: bool = False
+    watch_periods: float = 40.0
+    nudge: float = 0.05
+    max_turn: float = 12.0
+
+    def __post_init__(self) -> None:
+        if int(self.n_harmonics) < 1:
+            raise BifidInputError(f"n_harmonics must be >= 1, got {self.n_harmonics!r}.")
+        for name in ("settle_periods", "measure_periods", "tol", "ds", "ds_max",
+                     "watch_periods"):
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise BifidInputError(f"{name} must be a positive number, got {v!r}.")
+        if self.ds > self.ds_max:
+            raise BifidInputError(f"ds ({self.ds}) must not exceed ds_max ({self.ds_max}).")
+        for name in ("picard_max", "max_points", "newton_max"):
+            if int(getattr(self, name)) < 1:
+                raise BifidInputError(f"{name} must be a positive integer.")
+        PDController(self.kp, self.kd, self.signal, f"{self.signal}_dot")
+
+    @property
+    def controller(self) -> PDController:
+        return PDController(self.kp, self.kd, self.signal, f"{self.signal}_dot")
+
+    def to_json(self) -> dict[str, Any]:
+        return asdict(self)
+
+
+@dataclass
+class ForcedPoint:
+    """A steady forced response measured with a non-invasive controller.
+
+    Attributes
+    ----------
+    omega, forcing, force_phase : float
+        ``Ω`` [rad/s], ``γ`` and ``ψ`` of the excitation ``γ cos(θ - ψ)``.
+    target : FourierTarget
+    coefficients : ndarray
+        Measured response ``p = [A0, A1..Aq, B1..Bq]`` (eq. 3.4 ordering).
+    measurement : Measurement
+    amplitude : float
+        ``max_t |x(t)|`` of the observed signal (Fourier-filtered).
+    phase : float
+        Lag of the observed first harmonic behind the force, in ``[-π/2, 3π/2)``.
+    stable : bool or None
+    control_rms, invasiveness : float
+        RMS of ``u``; ``rms(u) / rms(kp x + kd ẋ)``.
+    residual : float
+        ``max |p* - p| / A_1^*`` at convergence.
+    iterations : int
+    """
+
+    omega: float
+    forcing: float
+    force_phase: float
+    target: FourierTarget
+    coefficients: np.ndarray
+    measurement: Measurement
+    amplitude: float
+    phase: float
+    stable: bool | None = None
+    growth: float = math.nan
+    control_rms: float = math.nan
+    invasiveness: float = math.nan
+    residual: float = math.nan
+    iterations: int = 0
+
+    def to_json(self) -> dict[str, Any]:
+        return {
+            "omega": self.omega,
+            "forcing": self.forcing,
+            "amplitude": self.amplitude,
+            "phase": self.phase,
+            "stable": self.stable,
+            "control_rms": self.control_rms,
+            "invasiveness": self.invasiveness,
+            "residual": self.residual,
+            "iterations": self.iterations,
+        }
+
+
+@dataclass
+class ForcedFailure:
+    """A point that did not converge (never recorded as data)."""
+
+    omega: float
+    forcing: float
+    reason: str
+    data: dict[str, Any] = field(default_factory=dict)
+
+    def to_json(self) -> dict[str, Any]:
+        return {"omega": self.omega, "forcing": self.forcing, "reason": self.reason,
+                **self.data}
+
+
+# ------------------------------------------------------------------------------ helpers
+def _to_eq33(c: np.ndarray) -> np.ndarray:
+    """``[c0, a.., b..]`` (mean c0) to eq. 3.3's ``[A0, A.., B..]`` (mean A0/2)."""
+    p = np.array(c, dtype=float)
+    p[0] *= 2.0
+    return p
+
+
+@dataclass
+class _Meas:
+    p: np.ndarray  # response coefficients, eq. 3.3 ordering
+    u: np.ndarray  # control coefficients [c0, a1.., b1..] (a1 cos θ + b1 sin θ ...)
+    m: Measurement
+    floor: float  # noise floor of the response coefficients
+    ufloor: float  # noise floor of the control coefficients
+
+
+def _measure(rig: AbstractRig, opts: ForcedCBCOptions, omega: float, settle: float) -> _Meas:
+    """Settle, record whole periods, project response and control on the generator phase."""
+    period = 2.0 * math.pi / omega
+    if settle > 0:
+        rig.run(settle * period)
+    m = rig.run(opts.measure_periods * period + 2.0 / rig.sample_rate)
+    n = whole_periods(len(m), omega, m.sample_rate)
+    m = m.tail(n)
+    x = m.signal(opts.signal)
+    c = fourier_project(np.column_stack([x, m.control]), m.phase, opts.n_harmonics)
+    cx, cu = c[:, 0], c[:, 1]
+    k = math.sqrt(2.0 / n)
+    floor = 3.0 * float(np.std(x - evaluate_series(cx, m.phase))) * k
+    ufloor = 3.0 * float(np.std(m.control - evaluate_series(cu, m.phase))) * k
+    return _Meas(_to_eq33(cx), cu, m, floor, ufloor)
+
+
+def _lag(p: np.ndarray, psi: float, q: int) -> float:
+    """Lag of the response's first harmonic behind the force ``γ cos(θ - ψ)``."""
+    phi_x = math.atan2(p[q + 1], p[1])
+    lag = phi_x - psi
+    return float((lag + math.pi / 2) % (2 * math.pi) - math.pi / 2)
+
+
+def _point(rig, opts, omega, gamma, psi, pstar, r: _Meas, residual, iterations
+           ) -> ForcedPoint:
+    q = opts.n_harmonics
+    p, m = r.p, r.m
+    grid = np.linspace(0.0, 2.0 * np.pi, 2048, endpoint=False)
+    c = p.copy()
+    c[0] *= 0.5
+    amp = float(np.max(np.abs(evaluate_series(c, grid))))
+    x = m.signal(opts.signal)
+    xd = m.signal(f"{opts.signal}_dot")
+    u_rms = float(np.sqrt(np.mean(m.control**2)))
+    fb = opts.kp * x + opts.kd * xd
+    inv = u_rms / max(float(np.sqrt(np.mean(fb**2))), 1e-300)
+    return ForcedPoint(
+        omega=omega, forcing=gamma, force_phase=psi, target=FourierTarget(pstar),
+        coefficients=p, measurement=m, amplitude=amp, phase=_lag(p, psi, q),
+        control_rms=u_rms, invasiveness=inv, residual=residual, iterations=iterations,
+    )
+
+
+def _stability(rig: AbstractRig, opts: ForcedCBCOptions, pt: ForcedPoint) -> None:
+    """Switch-off test for a forced response (the force stays on), Fig. 3.18."""
+    q = opts.n_harmonics
+    nudged = pt.target.coefficients.copy()
+    nudged[1:] *= 1.0 - opts.nudge
+    a1 = math.hypot(pt.coefficients[1], pt.coefficients[q + 1])
+    res, _ = switch_off_test(rig, opts.signal, a1, pt.omega, controller=opts.controller,
+                             nudged_target=FourierTarget(nudged), restore_target=pt.target,
+                             watch_periods=opts.watch_periods)
+    pt.stable, pt.growth = res.stable, res.growth
+    rig.run(opts.settle_periods * 2.0 * math.pi / pt.omega)
+
+
+# ------------------------------------------------------------------------------ S-curve
+def _gain(opts: ForcedCBCOptions, omega: float) -> float:
+    """``|k_p + i Ω k_d|``: control per unit tracking error at the fundamental."""
+    return math.hypot(opts.kp, omega * opts.kd)
+
+
+def _converge_scurve_point(rig, opts, omega, pstar, gamma, psi, on_iteration, settle_first
+                           ) -> tuple[ForcedPoint | None, np.ndarray, float, float, str]:
+    """Iterate eqs. 3.6 and 3.8 with the target fundamental fixed.
+
+    Eq. 3.6 is applied in its measured form: the fundamental of the *recorded* control
+    signal is added to the force. With an exact derivative this equals
+    ``k_p ΔA_1 + Ω k_d ΔB_1`` (and the sine counterpart); with a derivative estimated from
+    samples it stays exact, whereas the formula would leave the estimator's lag in the
+    loop as an invasive control. Converged when the control's fundamental and the
+    higher-harmonic tracking errors are below ``tol`` (relative to ``A_1*``).
+    """
+    q = opts.n_harmonics
+    fund = [1, q + 1]
+    others = [i for i in range(2 * q + 1) if i not in fund]
+    f = np.array([gamma * math.cos(psi), gamma * math.sin(psi)])
+    ctrl = opts.controller
+    K = _gain(opts, omega)
+    pstar = pstar.copy()
+    err = math.inf
+    # Jacobian of the control's fundamental with respect to the force's (cos, sin) parts:
+    # -I when force and control enter at the same point (then the update is eq. 3.6);
+    # Broyden-corrected otherwise (e.g. a force on both masses of shaw_pierre)
+    J = -np.eye(2)
+    last: tuple[np.ndarray, np.ndarray] | None = None
+    for it in range(opts.picard_max):
+        gamma, psi = math.hypot(f[0], f[1]), math.atan2(f[1], f[0])
+        rig.set_forcing(gamma, omega, psi)
+        rig.set_controller(ctrl, FourierTarget(pstar))
+        settle = settle_first if it == 0 else opts.settle_periods
+        r = _measure(rig, opts, omega, settle)
+        if on_iteration is not None:
+            on_iteration(1)
+        a1 = max(math.hypot(pstar[1], pstar[q + 1]), 1e-300)
+        e_h = float(np.max(np.abs((pstar - r.p)[others]))) if others else 0.0
+        uf = np.array([r.u[1], r.u[q + 1]])
+        err = max(e_h, float(np.hypot(*uf)) / K)
+        if e_h <= opts.tol * a1 + r.floor and np.hypot(*uf) <= opts.tol * K * a1 + r.ufloor:
+            pt = _point(rig, opts, omega, gamma, psi, pstar, r, err / a1, it + 1)
+            return pt, pstar, gamma, psi, ""
+        if last is not None:
+            df, du = f - last[0], uf - last[1]
+            if df @ df > 0:
+                J = J + np.outer(du - J @ df, df) / (df @ df)
+        last = (f.copy(), uf)
+        # eq. 3.6 (measured, quasi-Newton): move the control's fundamental into the force
+        f = f - np.linalg.solve(J, uf)
+        # eq. 3.8: Picard on the other harmonics
+        pstar[others] = r.p[others]
+    return None, pstar, gamma, psi, (
+        f"target iteration did not converge in {opts.picard_max} iterations "
+        f"(control error {err:.2e})"
+    )
+
+
+def folds_of(points: list[ForcedPoint], key: str = "forcing") -> list[dict[str, float]]:
+    """Folds of a measured curve: local extrema of ``key`` (``"forcing"`` or ``"omega"``).
+
+    The curve is parametrised by its cumulative chord length ``s`` in the normalised
+    ``(key, amplitude)`` plane; cubic splines ``key(s)`` and ``amplitude(s)`` through all
+    points are searched for the extrema of ``key`` between the points that bracket a
+    change of direction. Returns ``[{key: value, "amplitude": value}]``.
+    """
+    from scipy.interpolate import CubicSpline
+
+    if len(points) < 4:
+        return []
+    v = np.array([getattr(pt, key) for pt in points], dtype=float)
+    a = np.array([pt.amplitude for pt in points], dtype=float)
+    dv = np.diff(v) / max(np.ptp(v), 1e-300)
+    da = np.diff(a) / max(np.ptp(a), 1e-300)
+    s = np.concatenate([[0.0], np.cumsum(np.hypot(dv, da))])
+    keep = np.concatenate([[True], np.diff(s) > 0])
+    s, v, a = s[keep], v[keep], a[keep]
+    sv, sa = CubicSpline(s, v), CubicSpline(s, a)
+    out = []
+    for i in range(1, len(v) - 1):
+        if (v[i] - v[i - 1]) * (v[i + 1] - v[i]) < 0:
+            grid = np.linspace(s[i - 1], s[i + 1], 4001)
+            vals = sv(grid)
+            j = int(np.argmax(vals) if v[i] > v[i - 1] else np.argmin(vals))
+            out.append({key: float(vals[j]), "amplitude": float(sa(grid[j]))})
+    return out
+
+
+def scurve_cbc(
+    rig: AbstractRig,
+    omega: float,
+    forcing_range: tuple[float, float],
+    options: ForcedCBCOptions | None = None,
+    *,
+    amplitude_scale: float | None = None,
+    on_point: Callable[[ForcedPoint], None] | None = None,
+    on_iteration: Callable[[int], None] | None = None,
+    start: ForcedPoint | None = None,
+    previous: ForcedPoint | None = None,
+) -> tuple[list[ForcedPoint], list[ForcedFailure]]:
+    """Measure an S-curve at frequency ``omega`` from ``forcing_range[0]`` up (§3.2.1).
+
+    Starts on the low-forcing branch (the response to ``γ = forcing_range[0]``) and
+    follows the curve by secant prediction in the normalised ``(A_1, γ)`` plane round its
+    folds, until ``γ`` exceeds ``forcing_range[1]`` on a rising part, falls below
+    ``forcing_range[0]``, or ``max_points`` is reached.
+
+    Parameters
+    ----------
+    amplitude_scale : float, optional
+        ``a_ref`` of the arclength norm (default: 20 × the first point's amplitude).
+    start, previous : ForcedPoint, optional
+        Resume from these (the last two recorded points).
+
+    Returns
+    -------
+    points, failures
+    """
+    opts = options or ForcedCBCOptions()
+    lo, hi = float(forcing_range[0]), float(forcing_range[1])
+    if not (0 < lo < hi and math.isfinite(hi)):
+        raise BifidInputError(f"forcing range must satisfy 0 < lo < hi, got {forcing_range}.")
+    if not (omega > 0 and math.isfinite(omega)):
+        raise BifidInputError(f"omega must be a positive frequency, got {omega!r}.")
+    q = opts.n_harmonics
+    n_c = 2 * q + 1
+    points: list[ForcedPoint] = []
+    failures: list[ForcedFailure] = []
+
+    def it_cb(k: int) -> None:
+        if on_iteration is not None:
+            on_iteration(k)
+
+    if start is None:
+        # bootstrap: hold the observed signal at its measured low-forcing response
+        rig.set_forcing(lo, omega, 0.0)
+        rig.set_controller(None)
+        p0 = _measure(rig, opts, omega, 3 * opts.settle_periods).p
+        a1 = math.hypot(p0[1], p0[q + 1])
+        pstar = np.zeros(n_c)
+        pstar[1] = a1
+        # force phase so that the response fundamental is ~ A1 cos θ
+        psi = -math.atan2(p0[q + 1], p0[1])
+        pt, pstar, gamma, psi, why = _converge_scurve_point(
+            rig, opts, omega, pstar, lo, psi, it_cb, opts.settle_periods)
+        if pt is None:
+            failures.append(ForcedFailure(omega, lo, why))
+            warnings.warn(f"S-curve CBC at Ω={omega:g}: first point: {why}.",
+                          ConvergenceWarning, stacklevel=2)
+            return points, failures
+        _record(rig, opts, pt, points, on_point)
+        prev = None
+    else:
+        pt, prev = start, previous
+    a_ref = amplitude_scale or 20.0 * max(pt.amplitude, 1e-12)
+    g_ref = hi
+    ds = opts.ds
+    cur = pt
+
+    def y_of(x: ForcedPoint) -> np.ndarray:
+        return np.array([x.target.coefficients[1] / a_ref, x.forcing / g_ref])
+
+    while len(points) < opts.max_points:
+        if prev is None:
+            t = np.array([1.0, 0.0])  # first step: along the amplitude
+        else:
+            sec = y_of(cur) - y_of(prev)
+            t = sec / np.linalg.norm(sec)
+            if t[0] < 0:  # the response amplitude grows along an S-curve
+                t = -t
+        y_pred = y_of(cur) + ds * t
+        pstar = cur.target.coefficients.copy()
+        if prev is not None:
+            # linear extrapolation of the higher harmonics along the secant
+            frac = ds / max(np.linalg.norm(y_of(cur) - y_of(prev)), 1e-300)
+            pstar = pstar + frac * (cur.target.coefficients - prev.target.coefficients)
+        pstar[1] = y_pred[0] * a_ref
+        pstar[q + 1] = 0.0
+        gamma = max(y_pred[1] * g_ref, 0.0)
+        try:
+            new, _, _, _, why = _converge_scurve_point(rig, opts, omega, pstar, gamma,
+                                                       cur.force_phase, it_cb, opts.settle_periods)
+        except ConvergenceError as exc:
+            new, why = None, f"rig failure: {exc}"
+        if new is None:
+            if ds > opts.ds / 16:
+                ds /= 2.0
+                continue
+            failures.append(ForcedFailure(omega, gamma, why))
+            warnings.warn(f"S-curve CBC at Ω={omega:g} stopped near γ={gamma:.4g}: {why}.",
+                          ConvergenceWarning, stacklevel=2)
+            break
+        _record(rig, opts, new, points, on_point)
+        # step control: shrink where the curve turns (folds), grow where it is straight
+        turn = 0.0
+        if prev is not None:
+            s_old = y_of(cur) - y_of(prev)
+            s_new = y_of(new) - y_of(cur)
+            cosang = float(s_old @ s_new / (np.linalg.norm(s_old) * np.linalg.norm(s_new)))
+            turn = math.degrees(math.acos(max(-1.0, min(1.0, cosang))))
+        prev, cur = cur, new
+        if turn > opts.max_turn:
+            ds = max(opts.ds / 8, ds * 0.5)
+        elif new.iterations <= 6 and turn < opts.max_turn / 2:
+            ds = min(opts.ds_max, ds * 1.3)
+        if new.forcing > hi and new.forcing > prev.forcing:
+            break
+        if new.forcing < lo:
+            break
+    return points, failures
+
+
+def _record(rig, opts, pt: ForcedPoint, points: list[ForcedPoint],
+            on_point: Callable[[ForcedPoint], None] | None) -> None:
+    if opts.stability:
+        _stability(rig, opts, pt)
+    points.append(pt)
+    if on_point is not None:
+        on_point(pt)
+
+
+# ---------------------------------------------------------------------------------- FRC
+def frc_cbc(
+    rig: AbstractRig,
+    forcing: float,
+    omega_range: tuple[float, float],
+    options: ForcedCBCOptions | None = None,
+    *,
+    omega_scale: float | None = None,
+    on_point: Callable[[ForcedPoint], None] | None = None,
+    on_iteration: Callable[[int], None] | None = None,
+) -> tuple[list[ForcedPoint], list[ForcedFailure]]:
+    """Measure a frequency response curve at forcing ``γ`` over ``omega_range``.
+
+    Unknowns ``y = (A_1^*, B_1^*, Ω)``; equations ``A_1^* - A_1 = 0``, ``B_1^* - B_1 = 0``
+    (the response's fundamental, higher harmonics converged by Picard inside each
+    evaluation) and the pseudo-arclength condition ``t^T W (y - y_pred) = 0``. Newton
+    with a finite-difference Jacobian (3 rig evaluations) updated by Broyden's rule; the
+    first point is solved at fixed ``Ω = omega_range[0]``.
+    """
+    opts = options or ForcedCBCOptions()
+    w0, w1 = float(omega_range[0]), float(omega_range[1])
+    if not (w0 > 0 and w1 > 0 and w0 != w1):
+        raise BifidInputError(f"omega range must be two distinct positive values, got {omega_range}.")
+    if not (forcing > 0 and math.isfinite(forcing)):
+        raise BifidInputError(f"forcing must be positive, got {forcing!r}.")
+    q = opts.n_harmonics
+    direction = 1.0 if w1 > w0 else -1.0
+    om_ref = omega_scale or abs(w1 - w0)
+    points: list[ForcedPoint] = []
+    failures: list[ForcedFailure] = []
+    state: dict[str, Any] = {"pstar": None}
+
+    def it_cb(k: int) -> None:
+        if on_iteration is not None:
+            on_iteration(k)
+
+    def evaluate(y: np.ndarray) -> tuple[np.ndarray, tuple]:
+        """``G = (u_cos, u_sin) / |k_p + iΩk_d|``: the control's fundamental, in units of x."""
+        A1, B1, om = float(y[0]), float(y[1]), float(y[2])
+        pstar = state["pstar"].copy()
+        pstar[1], pstar[q + 1] = A1, B1
+        others = [i for i in range(2 * q + 1) if i not in (1, q + 1)]
+        rig.set_forcing(forcing, om, 0.0)
+        r = None
+        for k in range(opts.picard_max):
+            rig.set_controller(opts.controller, FourierTarget(pstar))
+            r = _measure(rig, opts, om, opts.settle_periods)
+            it_cb(1)
+            e_h = float(np.max(np.abs((pstar - r.p)[others])))
+            if e_h <= opts.tol * max(math.hypot(A1, B1), 1e-300) + r.floor:
+                break
+            pstar[others] = r.p[others]
+        assert r is not None
+        state["pstar"] = pstar
+        K = _gain(opts, om)
+        g = np.array([r.u[1], r.u[q + 1]]) / K
+        return g, (pstar, r, r.ufloor / K)
+
+    # start: open-loop response at w0 as the first guess
+    rig.set_forcing(forcing, w0, 0.0)
+    rig.set_controller(None)
+    p0 = _measure(rig, opts, w0, 3 * opts.settle_periods).p
+    state["pstar"] = p0.copy()
+    a_ref = max(math.hypot(p0[1], p0[q + 1]) * 20.0, 1e-12)
+    W = np.array([1.0 / a_ref**2, 1.0 / a_ref**2, 1.0 / om_ref**2])
+
+    def fd_jac(y, g0):
+        J = np.empty((2, 3))
+        for j in range(3):
+            h = 1e-2 * (a_ref / 20.0 if j < 2 else om_ref * 0.01)
+            yp = y.copy()
+            yp[j] += h
+            gp, _ = evaluate(yp)
+            J[:, j] = (gp - g0) / h
+        evaluate(y)
+        return J
+
+    def converged(y, g, info) -> bool:
+        return float(np.max(np.abs(g))) <= opts.tol * max(math.hypot(y[0], y[1]), 1e-300) + info[2]
+
+    def newton(y, row, c, J):
+        g, info = evaluate(y)
+        for _ in range(opts.newton_max):
+            if converged(y, g, info):
+                return y, info, J
+            A = np.vstack([J, row[None, :]])
+            dy = np.linalg.solve(A, np.concatenate([-g, [c - row @ y]]))
+            yn = y + dy
+            gn, info = evaluate(yn)
+            J = J + np.outer(gn - g - J @ dy, dy * W) / (dy @ (dy * W))
+            y, g = yn, gn
+        return (y if converged(y, g, info) else None), info, J
+
+    y = np.array([p0[1], p0[q + 1], w0])
+    g0, _ = evaluate(y)
+    J = fd_jac(y, g0)
+    e_om = np.array([0.0, 0.0, 1.0])
+    y1, info, J = newton(y, e_om, w0, J)
+    if y1 is None:
+        failures.append(ForcedFailure(w0, forcing, "first FRC point did not converge"))
+        warnings.warn("FRC CBC: first point did not converge.", ConvergenceWarning, stacklevel=2)
+        return points, failures
+
+    def record(y, info):
+        pstar, r, _ = info
+        a1 = max(math.hypot(y[0], y[1]), 1e-300)
+        res = math.hypot(r.u[1], r.u[q + 1]) / _gain(opts, float(y[2])) / a1
+        pt = _point(rig, opts, float(y[2]), forcing, 0.0, pstar, r, res, 0)
+        _record(rig, opts, pt, points, on_point)
+
+    record(y1, info)
+    ys = [y1]
+    ds = opts.ds
+    t = np.array([0.0, 0.0, direction])
+    while len(points) < opts.max_points:
+        if len(ys) >= 2:
+            sec = ys[-1] - ys[-2]
+            t = sec / math.sqrt(sec @ (W * sec))
+        else:
+            t = t / math.sqrt(t @ (W * t))
+        y_pred = ys[-1] + ds * t
+        row = W * t
+        ynew, info, Jn = newton(y_pred, row, float(row @ y_pred), J)
+        if ynew is None:
+            if ds > opts.ds / 16:
+                ds /= 2
+                g_last, _ = evaluate(ys[-1])
+                J = fd_jac(ys[-1], g_last)
+                continue
+            failures.append(ForcedFailure(float(y_pred[2]), forcing,
+                                          "Newton–Broyden did not converge"))
+            warnings.warn(f"FRC CBC stopped near Ω={y_pred[2]:.4g}: Newton–Broyden did not "
+                          "converge.", ConvergenceWarning, stacklevel=2)
+            break
+        J = Jn
+        record(ynew, info)
+        ys.append(ynew)
+        ds = min(opts.ds_max, ds * 1.3)
+        om = float(ynew[2])
+        if (om - w1) * direction > 0 or (om - w0) * direction < 0:
+            break
+    return points, failures
