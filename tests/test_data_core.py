@@ -422,3 +422,38 @@ def test_signal_helpers_against_analytic_values() -> None:
     np.testing.assert_allclose(filled, x, atol=2e-5)
     with pytest.raises(BifidInputError, match="too many"):
         fill_gaps(x, np.ones(t.shape, bool), w, fs)
+
+
+# --------------------------------------------------------------------------- MAT framing
+
+
+def test_mat_structure_check_rejects_what_crashes_scipy(tmp_path: Path) -> None:
+    """Corrupted element tags made scipy's MAT reader segfault (found by fuzzing);
+    bifid checks the element tree first and raises BifidInputError instead."""
+    import io
+
+    import scipy.io
+
+    from bifid.data import load_mat
+
+    buf = io.BytesIO()
+    scipy.io.savemat(buf, {"a": 1.0})
+    good = buf.getvalue()
+    # layout: header 0-127 | matrix tag 128 | flags tag 136, flags 144 | dims 152-167 |
+    # name (small element) 168 | data tag 176 (miDOUBLE = 9), value 184
+    assert good[176] == 9
+    cases = {
+        "unknown data type 22": good[:176] + bytes([22]) + good[177:],
+        "should hold 2 data part": good[:145] + bytes([good[145] | 0x08]) + good[146:],
+        "claims": good[:180],
+        "no MAT v5 header": good[:126] + b"XX" + good[128:],
+        "shorter than the 128-byte header": good[:100],
+        "malformed dimensions": good[:152] + bytes([7]) + good[153:],
+    }
+    for message, blob in cases.items():
+        path = tmp_path / "bad.mat"
+        path.write_bytes(blob)
+        with pytest.raises(BifidInputError, match=message):
+            load_mat(path)
+    path.write_bytes(good)
+    assert load_mat(path)["a"] == 1.0

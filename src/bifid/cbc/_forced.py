@@ -41,7 +41,12 @@ from typing import Any
 import numpy as np
 
 from bifid.cbc._controllers import FourierTarget, PDController
-from bifid.cbc._fourier import evaluate_series, fourier_project, whole_periods
+from bifid.cbc._fourier import (
+    HarmonicSecant,
+    evaluate_series,
+    fourier_project,
+    whole_periods,
+)
 from bifid.cbc._rig import AbstractRig, Measurement
 from bifid.cbc._stability import switch_off_test
 from bifid.errors import BifidInputError, ConvergenceError, ConvergenceWarning
@@ -157,7 +162,7 @@ class ForcedPoint:
     force_phase: float
     target: FourierTarget
     coefficients: np.ndarray
-    measurement: Measurement
+    measurement: Measurement | None
     amplitude: float
     phase: float
     stable: bool | None = None
@@ -299,6 +304,7 @@ def _converge_scurve_point(rig, opts, omega, pstar, gamma, psi, on_iteration, se
     # Broyden-corrected otherwise (e.g. a force on both masses of shaw_pierre)
     J = -np.eye(2)
     last: tuple[np.ndarray, np.ndarray] | None = None
+    harm = HarmonicSecant(q, fixed=(1,))
     for it in range(opts.picard_max):
         gamma, psi = math.hypot(f[0], f[1]), math.atan2(f[1], f[0])
         rig.set_forcing(gamma, omega, psi)
@@ -321,8 +327,8 @@ def _converge_scurve_point(rig, opts, omega, pstar, gamma, psi, on_iteration, se
         last = (f.copy(), uf)
         # eq. 3.6 (measured, quasi-Newton): move the control's fundamental into the force
         f = f - np.linalg.solve(J, uf)
-        # eq. 3.8: Picard on the other harmonics
-        pstar[others] = r.p[others]
+        # eq. 3.8: Picard on the other harmonics (secant-accelerated)
+        pstar = harm.step(pstar, r.p, r.floor)
     return None, pstar, gamma, psi, (
         f"target iteration did not converge in {opts.picard_max} iterations "
         f"(control error {err:.2e})"
@@ -514,7 +520,9 @@ def frc_cbc(
     opts = options or ForcedCBCOptions()
     w0, w1 = float(omega_range[0]), float(omega_range[1])
     if not (w0 > 0 and w1 > 0 and w0 != w1):
-        raise BifidInputError(f"omega range must be two distinct positive values, got {omega_range}.")
+        raise BifidInputError(
+            f"omega range must be two distinct positive values, got {omega_range}."
+        )
     if not (forcing > 0 and math.isfinite(forcing)):
         raise BifidInputError(f"forcing must be positive, got {forcing!r}.")
     q = opts.n_harmonics
@@ -536,14 +544,15 @@ def frc_cbc(
         others = [i for i in range(2 * q + 1) if i not in (1, q + 1)]
         rig.set_forcing(forcing, om, 0.0)
         r = None
-        for k in range(opts.picard_max):
+        harm = HarmonicSecant(q, fixed=(1,))
+        for _k in range(opts.picard_max):
             rig.set_controller(opts.controller, FourierTarget(pstar))
             r = _measure(rig, opts, om, opts.settle_periods)
             it_cb(1)
             e_h = float(np.max(np.abs((pstar - r.p)[others])))
             if e_h <= opts.tol * max(math.hypot(A1, B1), 1e-300) + r.floor:
                 break
-            pstar[others] = r.p[others]
+            pstar = harm.step(pstar, r.p, r.floor)
         assert r is not None
         state["pstar"] = pstar
         K = _gain(opts, om)

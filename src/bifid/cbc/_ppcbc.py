@@ -43,6 +43,7 @@ from bifid.cbc._controllers import (
     target_to_json,
 )
 from bifid.cbc._fourier import (
+    HarmonicSecant,
     estimate_frequency,
     fourier_project,
     periodic_amplitude,
@@ -82,8 +83,9 @@ class PPCBCOptions:
         Periods to wait after a target change, and to record for the projections.
     tol : float
         Relative tolerance on the control error (``|Ξ| / A*`` for the scan, the
-        max-norm of ``G`` over ``a0*`` for continuation); the measurement-noise floor of
-        the projections is added automatically.
+        max-norm of ``G`` over ``a0*`` for continuation) *and* on the last secant/Newton
+        step (the error estimate of the target); the measurement-noise floor of the
+        projections is added automatically.
     picard_max : int
         Picard iterations on the target shape per amplitude.
     secant_max : int
@@ -324,16 +326,25 @@ class _Scanner:
         ok = False
         resp = None
         n0 = self.evals
+        polar = self.o.target == "polar"
+        acc = HarmonicSecant(self.o.n_harmonics, fixed=(0,)) if polar else None
         for _ in range(self.o.picard_max):
             resp = _evaluate(self.rig, self.o, self.fam, self.fam.target(a_star, shape), self.omega)
             self.evals += 1
             self.omega = resp.omega
-            change = float(np.max(np.abs(resp.shape - shape) * self._shape_weights(a_star)))
-            shape = resp.shape
+            # the shape's control error (target minus response), in units of A*
+            err = float(np.max(np.abs(resp.shape - shape) * self._shape_weights(a_star)))
             tol = self.o.tol * a_star + resp.floor
-            if change <= tol:
+            if polar:
+                assert acc is not None
+                new = acc.step(np.concatenate([[a_star], shape]), resp.coeffs, resp.floor)
+                new_shape = new[1:]
+            else:
+                new_shape = resp.shape
+            if err <= tol:
                 ok = True
                 break
+            shape = new_shape
         assert resp is not None
         self.shape = shape
         return _Eval(a_star, a_star - resp.a0, shape, resp, ok, self.evals - n0)
@@ -346,26 +357,32 @@ class _Scanner:
         return np.ones_like(self.shape)
 
 
-def _illinois(f: Callable[[float], _Eval], a: _Eval, b: _Eval, tol_fn, max_iter: int
-              ) -> tuple[_Eval | None, int]:
-    """Root of ``Ξ`` between evaluations ``a`` and ``b`` (opposite signs)."""
+def _illinois(f: Callable[[float], _Eval], a: _Eval, b: _Eval, tol_fn, rel_tol: float,
+              max_iter: int) -> tuple[_Eval | None, int]:
+    """Root of ``Ξ`` between evaluations ``a`` and ``b`` (opposite signs).
+
+    Converged when ``|Ξ|`` is within tolerance *and* the next secant step is below
+    ``rel_tol · A*`` (or the step that the noise floor of ``Ξ`` allows): with a strong
+    controller the response follows the target, ``Ξ = A* - A(A*)`` is flat near its zero
+    and a small ``|Ξ|`` alone does not bound the error of ``A*``.
+    """
     fa, fb = a.xi, b.xi
-    best = a if abs(fa) < abs(fb) else b
     for it in range(max_iter):
         x = (a.a_star * fb - b.a_star * fa) / (fb - fa)
         c = f(x)
-        if abs(c.xi) < abs(best.xi):
-            best = c
-        if abs(c.xi) <= tol_fn(c) and c.picard_ok:
-            return c, it + 1
         if c.xi * fb < 0:
             a, fa = b, fb
         else:
             fa = fa / 2.0
         b, fb = c, c.xi
-        if abs(b.a_star - a.a_star) < 1e-9 * max(abs(b.a_star), 1e-300):
+        slope = abs((b.xi - a.xi) / (b.a_star - a.a_star)) if b.a_star != a.a_star else 0.0
+        x_next = (a.a_star * fb - b.a_star * fa) / (fb - fa) if fb != fa else x
+        step_tol = rel_tol * c.a_star + (c.resp.floor / slope if slope > 0 else 0.0)
+        if abs(c.xi) <= tol_fn(c) and c.picard_ok and abs(x_next - c.a_star) <= step_tol:
+            return c, it + 1
+        if abs(b.a_star - a.a_star) < 1e-12 * max(abs(b.a_star), 1e-300):
             break
-    return (best if abs(best.xi) <= tol_fn(best) and best.picard_ok else None), max_iter
+    return None, max_iter
 
 
 def ppcbc_scan(
@@ -440,7 +457,7 @@ def ppcbc_scan(
         if len(evals) >= 2 and evals[-2].xi * e.xi < 0:
             lo, hi = evals[-2], e
             n0 = scan.evals
-            root, _ = _illinois(scan, lo, hi, tol_fn, opts.secant_max)
+            root, _ = _illinois(scan, lo, hi, tol_fn, opts.tol, opts.secant_max)
             if on_iteration is not None:
                 on_iteration(scan.evals)
             if root is None:
@@ -656,22 +673,23 @@ def ppcbc_continuation(
         g, resp = G(y)
         Jk = J.copy()
         for _ in range(opts.newton_max):
-            tol = opts.tol * y[0] + resp.floor
-            if np.max(np.abs(g)) <= tol:
-                return y, resp, Jk, float(np.max(np.abs(g)) / y[0])
             extra = (row if row is not None else np.eye(nc + 1)[-1])
             A = np.vstack([Jk, extra[None, :]])
             rhs = np.concatenate([-g, [0.0 if row is None else -(row @ (y - y_pred))]])
             dy = np.linalg.solve(A, rhs)
+            # converged: small residual and a Newton step (= the error estimate of y) small
+            # against the tolerance and against what the noise floor of G allows
+            noise_step = np.abs(np.linalg.solve(A, np.concatenate([np.full(nc, resp.floor),
+                                                                  [0.0]])))
+            if (np.max(np.abs(g)) <= opts.tol * y[0] + resp.floor
+                    and np.max(np.abs(dy[:nc])) <= opts.tol * y[0] + np.max(noise_step[:nc])):
+                return y, resp, Jk, float(np.max(np.abs(g)) / y[0])
             y_new = y + dy
             g_new, resp = G(y_new)
             # Broyden: J += (Δg - J Δy) Δyᵀ / (Δyᵀ Δy) in the weighted metric
             dyw = dy * w
             Jk = Jk + np.outer(g_new - g - Jk @ dy, dyw) / (dy @ dyw)
             y, g = y_new, g_new
-        tol = opts.tol * y[0] + resp.floor
-        if np.max(np.abs(g)) <= tol:
-            return y, resp, Jk, float(np.max(np.abs(g)) / y[0])
         return None, resp, Jk, float(np.max(np.abs(g)) / y[0])
 
     # second point: given, or a natural-parameter step corrected at fixed λ

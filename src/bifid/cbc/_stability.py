@@ -74,7 +74,7 @@ def period_amplitudes(x: np.ndarray, omega: float, sample_rate: float) -> np.nda
     m = int(x.shape[0] // per)
     out = np.empty(m)
     for j in range(m):
-        lo, hi = int(round(j * per)), int(round((j + 1) * per))
+        lo, hi = round(j * per), round((j + 1) * per)
         t = np.arange(hi - lo) / sample_rate
         B = np.stack([np.ones_like(t), np.cos(omega * t), np.sin(omega * t)], axis=1)
         coef, *_ = np.linalg.lstsq(B, x[lo:hi], rcond=None)
@@ -107,8 +107,8 @@ def switch_off_test(
     per-period first-harmonic amplitude from ``amplitude`` (the converged orbit's), the
     orbit is
 
-    - unstable if ``|d|`` (mean of the last two periods against the larger of the first
-      two) grows by more than ``threshold``, or the final deviation exceeds ``escape``,
+    - unstable if ``|d|`` (mean of the last two periods against the first) grows by more
+      than ``threshold``, or the final deviation exceeds ``escape``,
     - stable if it decays by the same factor,
     - undecided otherwise.
 
@@ -145,7 +145,7 @@ def switch_off_test(
         return StabilityResult(None, math.nan, d), m
     ad = np.abs(d)
     # growth per period from the first and last deviations (robust to a sign change of d)
-    start = float(np.max(ad[:2]))
+    start = float(ad[0])
     end = float(np.mean(ad[-2:])) if ad.shape[0] >= 4 else float(ad[-1])
     span = max(ad.shape[0] - 1.5, 1.0)
     growth = (max(end, 1e-12) / max(start, 1e-12)) ** (1.0 / span)

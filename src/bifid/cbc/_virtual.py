@@ -98,7 +98,6 @@ class _Static:
     derivative: str
     substeps: int
     block: int
-    dt: float
     tableau: ButcherTableau
     forced: bool
     record_states: bool
@@ -107,8 +106,6 @@ class _Static:
 @functools.lru_cache(maxsize=64)
 def _block_fn(st: _Static) -> Callable:
     """Compiled function advancing the rig by ``st.block`` samples (masked past ``n_valid``)."""
-    dt = st.dt
-    h = dt / st.substeps
 
     def outs_of(v):  # static slices, not a gather
         return jnp.stack([v[i] for i in st.outputs])
@@ -123,6 +120,8 @@ def _block_fn(st: _Static) -> Callable:
         x, yprev, dfilt, uprev = carry
         th0, n_valid = scal[0], scal[2]
         c = st.field.prepare(dyn["p"])
+        dt = dyn["dt"]  # traced: another sample rate does not re-compile
+        h = dt / st.substeps
         b, e = dyn["b"], dyn["e"]
         gamma, Om, psi = dyn["gamma"], dyn["Omega"], dyn["psi"]
         key = jax.random.fold_in(dyn["key"], scal[3].astype(jnp.int32))
@@ -304,7 +303,9 @@ class VirtualRig(AbstractRig):
         self._out_idx = tuple(system.state_index(n) for n in names)
         sr = float(sample_rate)
         if not (math.isfinite(sr) and sr > 0):
-            raise BifidInputError(f"sample_rate must be a positive number of Hz, got {sample_rate!r}.")
+            raise BifidInputError(
+                f"sample_rate must be a positive number of Hz, got {sample_rate!r}."
+            )
         self._fs = sr
         self._noise = _noise_vector(noise, names)
         if saturation is not None and not (float(saturation) > 0):
@@ -466,8 +467,10 @@ class VirtualRig(AbstractRig):
     def run(self, duration: float) -> Measurement:
         d = float(duration)
         if not (math.isfinite(d) and d > 0):
-            raise BifidInputError(f"duration must be a positive number of seconds, got {duration!r}.")
-        n = max(1, int(round(d * self._fs)))
+            raise BifidInputError(
+                f"duration must be a positive number of seconds, got {duration!r}."
+            )
+        n = max(1, round(d * self._fs))
         return self._run_samples(n)
 
     def describe(self) -> dict[str, Any]:
@@ -530,7 +533,6 @@ class VirtualRig(AbstractRig):
             derivative=self._derivative,
             substeps=self._substeps,
             block=block,
-            dt=1.0 / self._fs,
             tableau=RK4,
             forced=self._forcing_on,
             record_states=self._record_states,
@@ -553,7 +555,7 @@ class VirtualRig(AbstractRig):
             "noise": self._noise, "alpha": np.float64(alpha),
             "target": np.asarray(self._target_vec), "gains": np.asarray(self._gains),
             "ctrl_on": np.float64(self._ctrl_on), "umax": np.float64(self._umax),
-            "key": self._key,
+            "key": self._key, "dt": np.float64(dt),
         })
         outs = []
         done = 0

@@ -141,6 +141,13 @@ def _forced_branch(system, kind, param, ys, result, p, idx_free, M, options, obs
     )
 
 
+def _weights(M: int, n: int, span: float) -> np.ndarray:
+    """Arclength weights: mesh values as an RMS over the period, the parameter relative to
+    its range, so a unit step means "the response changes by one unit or the parameter
+    crosses its whole range" whatever the parameter's scale."""
+    return np.concatenate([np.full(M * n, 1.0 / M), [1.0 / span**2]])
+
+
 def _require_forced(system: System) -> None:
     if system.kind != "forced":
         raise BifidInputError(
@@ -214,15 +221,13 @@ def frc(
     p = system.param_vector() if p is None else jnp.asarray(p, dtype=jnp.float64)
     p = p.at[system.index("F")].set(forcing).at[system.index("Omega")].set(lo)
     span = abs(hi - lo)
-    options = options or ContinuationOptions(
-        ds=span / 100, ds_min=span * 1e-9, ds_max=span / 25, max_steps=2000
-    )
+    options = options or ContinuationOptions(ds=0.01, ds_min=1e-10, ds_max=0.1, max_steps=2000)
     options = options.with_(p_min=min(lo, hi), p_max=max(lo, hi), direction=direction)
     M = n_mesh
     iOm = system.index("Omega")
     problem = forced_problem(system, M, 1)
     y0, args = _start_solution(system, problem, p, iOm, lo, M, options, "FRC")
-    w = np.concatenate([np.full(M * system.n_states, 1.0 / M), [1.0]])
+    w = _weights(M, system.n_states, span)
     t0 = np.zeros_like(y0)
     t0[-1] = direction
     result = palc(problem, y0, t0, args, options, weights=w, progress=progress,
@@ -252,15 +257,13 @@ def scurve(
     p = system.param_vector() if p is None else jnp.asarray(p, dtype=jnp.float64)
     p = p.at[system.index("Omega")].set(omega).at[system.index("F")].set(lo)
     span = abs(hi - lo)
-    options = options or ContinuationOptions(
-        ds=span / 100, ds_min=span * 1e-9, ds_max=span / 10, max_steps=2000
-    )
+    options = options or ContinuationOptions(ds=0.01, ds_min=1e-10, ds_max=0.1, max_steps=2000)
     options = options.with_(p_min=min(lo, hi), p_max=max(lo, hi), direction=direction)
     M = n_mesh
     iF = system.index("F")
     problem = forced_problem(system, M, 1)
     y0, args = _start_solution(system, problem, p, iF, lo, M, options, "S-curve")
-    w = np.concatenate([np.full(M * system.n_states, 1.0 / M), [1.0]])
+    w = _weights(M, system.n_states, span)
     t0 = np.zeros_like(y0)
     t0[-1] = direction
     result = palc(problem, y0, t0, args, options, weights=w, progress=progress,

@@ -25,6 +25,7 @@ import numpy as np
 from scipy.linalg import cho_factor, cho_solve
 
 LENGTH_GRID = (0.5, 1.0, 2.0, 4.0)
+POINTS_PER_ORBIT = 32
 RIDGE_GRID = (1e-6, 1e-4, 1e-2)
 
 

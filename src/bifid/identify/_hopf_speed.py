@@ -41,6 +41,8 @@ from bifid.identify._hopf_map import l2, mlp, mlp_apply, mlp_static, u12
 from bifid.identify._hopf_optim import minimise
 from bifid.identify._hopf_polar import fourier_design
 
+__all__ = ["fourier_design"]
+
 Array = jnp.ndarray
 
 
@@ -56,8 +58,9 @@ class SpeedConfig:
         Hidden width and layers of :math:`\\mathrm{NN}_{\\Theta_\\Omega}` (tanh).
     n_fit : int
         Adam iterations fitting the network to the measured speed profiles.
-    n_adam : int
-        Adam iterations on :math:`\\Xi_\\Omega` (eq. 5.13).
+    n_refine : int
+        L-BFGS iterations on :math:`\\Xi_\\Omega` (eq. 5.13) from the profile fit (a descent
+        method: it can only improve on its start).
     learning_rate : float
     n_sub : int
         RK4 sub-steps per sample interval.
@@ -74,7 +77,7 @@ class SpeedConfig:
     width: int = 16
     depth: int = 2
     n_fit: int = 400
-    n_adam: int = 200
+    n_refine: int = 100
     learning_rate: float = 3e-3
     n_sub: int = 2
     form: str = "log"
@@ -85,8 +88,12 @@ class SpeedConfig:
 def log_speed_coefficients(om, static, rho: Array, mu_t: Array, config: SpeedConfig) -> Array:
     r"""Coefficients :math:`\mathbf c` of :math:`g(\theta) = \mathbf c^{\mathsf T}[1, \cos\theta,
     \dots, \sin n\theta]` such that :math:`\Omega = \omega_s g` (additive form) or
-    :math:`\Omega = \omega_s e^{g}` (log form)."""
-    coef = mlp_apply(om["nn"], static, jnp.stack([rho, mu_t]))
+    :math:`\Omega = \omega_s e^{g}` (log form):
+    :math:`\mathbf c = w_0\mathbf e_0 + W_{\rm lin}[\rho, \tilde\mu]^{\mathsf T}
+    + \mathrm{NN}_{\Theta_\Omega}(\rho, \tilde\mu)` — an unregularised linear part (fitted
+    first, as :math:`T_L` is for the map) plus the network correction."""
+    x = jnp.stack([rho, mu_t])
+    coef = mlp_apply(om["nn"], static, x) + om["lin"] @ x
     return coef.at[0].add(om["w0"])
 
 
@@ -209,13 +216,25 @@ def project(values: np.ndarray, grid: np.ndarray, nh: int) -> np.ndarray:
 
 
 # --------------------------------------------------------------------------- training
-def init_speed_params(key, config: SpeedConfig, w0: float = 0.0):
-    """Network with a zero output layer and constant term ``w0`` (normalised units)."""
+def init_speed_params(key, config: SpeedConfig, rho=None, mu_t=None, targets=None, weights=None):
+    """Initial speed parameters: network with a zero output layer; ``w0`` and the linear part
+    by weighted least squares of the per-orbit ``targets`` on ``[1, rho, mu_t]`` (zero when no
+    targets are given)."""
     import equinox as eqx
 
     out = 2 * config.n_harmonics + 1
     net = mlp(key, 2, out, config.width, config.depth, 0.0)
-    return {"nn": eqx.filter(net, eqx.is_array), "w0": jnp.asarray(w0)}
+    w0, lin = 0.0, np.zeros((out, 2))
+    if targets is not None:
+        w = np.ones(len(rho)) if weights is None else np.asarray(weights, dtype=float)
+        X = np.stack([np.ones_like(rho), rho, mu_t], axis=1) * np.sqrt(w)[:, None]
+        coef, *_ = np.linalg.lstsq(X, np.asarray(targets) * np.sqrt(w)[:, None], rcond=1e-10)
+        lin = coef[1:].T.copy()  # (out, 2) slopes
+        w0 = float(coef[0, 0])
+        bias = coef[0].copy()  # intercepts of the harmonics: the network's output bias
+        bias[0] = 0.0
+        net = eqx.tree_at(lambda m: m.layers[-1].bias, net, jnp.asarray(bias))
+    return {"nn": eqx.filter(net, eqx.is_array), "w0": jnp.asarray(w0), "lin": jnp.asarray(lin)}
 
 
 @functools.lru_cache(maxsize=16)
@@ -229,13 +248,17 @@ def profile_trainer(config: SpeedConfig):
     nh = config.n_harmonics
 
     def run(om, rho, mu_t, target, weights, lam):
+        w = jnp.concatenate([jnp.ones(1), 0.5 * jnp.ones(2 * nh)])
+        mean = jnp.sum(weights[:, None] * target, axis=0) / jnp.sum(weights)
+        var = jnp.sum(weights * jnp.sum(w * (target - mean) ** 2, axis=1)) / jnp.sum(weights)
+        scale = jnp.maximum(var, 1e-10)
+
         def per_orbit(theta):
             pred = jax.vmap(lambda r, m: log_speed_coefficients(theta, static, r, m, config))(
                 rho, mu_t
             )
-            # squared L2 distance of the profiles (Parseval weights), normalised units
-            w = jnp.concatenate([jnp.ones(1), 0.5 * jnp.ones(2 * nh)])
-            return jnp.sum(w * (pred - target) ** 2, axis=1)
+            # squared L2 distance of the profiles (Parseval weights), relative to their spread
+            return jnp.sum(w * (pred - target) ** 2, axis=1) / scale
 
         def loss(theta):
             e = per_orbit(theta)
@@ -254,7 +277,7 @@ def series_trainer(config: SpeedConfig, n_steps: int):
     """Refinement on :math:`\\Xi_\\Omega` (eq. 5.13) of one member's speed.
 
     ``(om, map_params, rho, mu_t, theta0, h, z, mask, lam, omega_scale)
-    -> (om, history (n_adam, n), loss)``.
+    -> (om, history (n_refine, n), loss)``.
     """
     static = mlp_static(2, 2 * config.n_harmonics + 1, config.width, config.depth)
     map_static = mlp_static(3, 2, config.map_width, config.map_depth)
@@ -276,7 +299,7 @@ def series_trainer(config: SpeedConfig, n_steps: int):
             return jnp.mean(e) + lam * l2(theta["nn"]), e
 
         theta, hist, (final, _) = minimise(
-            loss, om, n_adam=config.n_adam, n_lbfgs=0, learning_rate=config.learning_rate
+            loss, om, n_adam=0, n_lbfgs=config.n_refine, learning_rate=config.learning_rate
         )
         return theta, hist, final
 

@@ -473,11 +473,12 @@ def _frc_samples_at_psi(m, s, gamma, psi, rho0, omega0):
 
 
 def _backbone_mean(m, rho, omega0):
-    return _pad_call(lambda r: _backbone_mean_jit(m, r, omega0), rho)
+    return _pad_call(lambda r: _backbone_mean_jit(m, r, omega0), rho, chunked=False)
 
 
 def _backbone_samples(m, s, rho, omega0):
-    return _pad_call(lambda r: _backbone_samples_jit(m, s, r, omega0), rho, axis_out=1)
+    return _pad_call(lambda r: _backbone_samples_jit(m, s, r, omega0), rho, axis_out=1,
+                     chunked=False)
 
 
 def _dgamma_drho(m, rho, omega):
@@ -523,23 +524,29 @@ def _wrap_lag(psi: np.ndarray) -> np.ndarray:
     return (lag + np.pi / 2) % (2 * np.pi) - np.pi / 2
 
 
-def _pad_call(fn, *arrays, axis_out: int = 0):
-    """Call a jitted vectorised ``fn`` on 1-D arrays padded to a bucket length.
+_CHUNK = 128
 
-    Padding (with the last value) keeps the number of distinct shapes — and so of
-    compilations — small; outputs are trimmed back along ``axis_out``.
+
+def _pad_call(fn, *arrays, axis_out: int = 0, chunked: bool = True):
+    """Call a jitted vectorised ``fn`` on 1-D arrays in fixed-size chunks.
+
+    Every call sees arrays of length ``_CHUNK`` (the last chunk padded with its last
+    value), so each function compiles once whatever the number of points; outputs are
+    concatenated along ``axis_out`` and trimmed. With ``chunked=False`` the arrays are
+    padded to a bucket length instead and ``fn`` is called once (for sequential scans).
     """
     arrs = [np.atleast_1d(np.asarray(a, dtype=float)) for a in arrays]
     n = arrs[0].shape[0]
-    n_pad = _bucket(n)
-    padded = [jnp.asarray(np.concatenate([a, np.full(n_pad - n, a[-1])])) for a in arrs]
-    out = fn(*padded)
+    size = _CHUNK if chunked else _bucket(n)
+    n_pad = int(math.ceil(n / size) * size)
+    padded = [np.concatenate([a, np.full(n_pad - n, a[-1])]) for a in arrs]
+    outs = [fn(*(jnp.asarray(a[k : k + size]) for a in padded)) for k in range(0, n_pad, size)]
 
-    def trim(v):
-        v = np.asarray(v)
+    def cat(*vs):
+        v = np.concatenate([np.asarray(x) for x in vs], axis=axis_out)
         return v[(slice(None),) * axis_out + (slice(0, n),)]
 
-    return jax.tree_util.tree_map(trim, out)
+    return jax.tree_util.tree_map(cat, *outs)
 
 
 class ForcedKernelModel:
@@ -591,7 +598,7 @@ class ForcedKernelModel:
         rho_min_fraction: float = 0.02,
         observation: bool = True,
         phase_points: int = 16,
-        max_phi_points: int = 256,
+        max_phi_points: int = 128,
         noise_floor: float = 1e-5,
         n_restarts: int = 1,
         seed: int = 0,
@@ -848,10 +855,13 @@ class ForcedKernelModel:
             self.notes_.append("no time series in the data: the observation φ is not learned")
             return None
         n_phase = int(np.clip(self.max_phi_points // max(len(recs), 1), 8, self.phase_points))
+        # records spread over the amplitude range when there are too many
         if n_phase * len(recs) > self.max_phi_points:
-            step = math.ceil(n_phase * len(recs) / self.max_phi_points)
-            recs = recs[::step]
-            self.notes_.append(f"φ trained on every {step}th record (max_phi_points)")
+            keep = max(1, self.max_phi_points // n_phase)
+            order = np.argsort([r for _, _, r in recs])
+            pick = order[np.round(np.linspace(0, len(recs) - 1, keep)).astype(int)]
+            self.notes_.append(f"φ trained on {keep} of {len(recs)} records (max_phi_points)")
+            recs = [recs[i] for i in sorted(set(pick.tolist()))]
         zs, ys = [], []
         for (t, y), o, r in recs:
             period = 2 * np.pi / o
@@ -868,7 +878,7 @@ class ForcedKernelModel:
         y = np.concatenate([*ys, np.zeros(1)])
         gp = GPRegressor(
             basis=((1, 0), (0, 1)), basis_center=(0.0, 0.0), criterion=self.selection,
-            n_restarts=self.n_restarts, seed=self.seed,
+            n_restarts=0, seed=self.seed,
             bounds=HyperBounds(length_scale=(0.05, 100.0), noise=(self.noise_floor, 1.0)),
         )
         rs = float(np.max(rho))
@@ -1105,11 +1115,8 @@ class ForcedKernelModel:
         samples = self.sample_reduced(n_samples, seed=seed)
         rho, psi = branch.solutions[:, 0], branch.solutions[:, 1]
         om = branch.params
-        (r_s, o_s), res = _frc_samples_at_psi(
-            self.model_, samples, jnp.asarray(gamma), jnp.asarray(psi), jnp.asarray(rho),
-            jnp.asarray(om),
-        )
-        r_s, o_s, res = np.asarray(r_s), np.asarray(o_s), np.asarray(res)
+        u, res = _frc_samples_at_psi(self.model_, samples, jnp.asarray(gamma), psi, rho, om)
+        r_s, o_s, res = np.asarray(u[..., 0]), np.asarray(u[..., 1]), np.asarray(res)
         bad = ~(np.isfinite(res) & (res < 1e-8 * max(gamma, 1e-300) + 1e-12) & (r_s > 0)
                 & np.isfinite(o_s))
         r_s = np.where(bad, np.nan, r_s)

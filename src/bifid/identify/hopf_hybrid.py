@@ -56,7 +56,7 @@ from bifid.identify._hopf_normal_form import (
     lco_radius2,
     raw_a2,
 )
-from bifid.identify._hopf_observe import ObservationModel, fit_observation
+from bifid.identify._hopf_observe import POINTS_PER_ORBIT, ObservationModel, fit_observation
 from bifid.identify._hopf_prepare import Prepared, choose_harmonics, prepare
 
 Array = jnp.ndarray
@@ -165,7 +165,8 @@ class HopfHybridModel:
     omega_width, omega_depth : int
         Shape of :math:`\mathrm{NN}_{\Theta_\Omega}`.
     omega_fit_iterations, omega_iterations : int
-        Adam iterations fitting the measured speed profiles, then on eq. 5.13.
+        Adam iterations fitting the network to the measured speed profiles, then L-BFGS
+        iterations on eq. 5.13 (time series through the phase equation).
     omega_learning_rate : float
     omega_regularization : "cv" or float
         L2 weight on :math:`\mathrm{NN}_{\Theta_\Omega}` (``"cv"``: leave-one-orbit-out).
@@ -198,12 +199,12 @@ class HopfHybridModel:
         regularization_grid: Sequence[float] = (0.0, 1e-7, 1e-6, 1e-5, 1e-4),
         stopping: str = "cv",
         n_ensemble: int = 5,
-        omega_harmonics: int = 0,
+        omega_harmonics: int = 6,
         omega_form: str = "log",
         omega_width: int = 16,
         omega_depth: int = 2,
         omega_fit_iterations: int = 400,
-        omega_iterations: int = 200,
+        omega_iterations: int = 100,
         omega_learning_rate: float = 3e-3,
         omega_regularization: str | float = "cv",
         omega_regularization_grid: Sequence[float] = (1e-6, 1e-4, 1e-2),
@@ -585,6 +586,7 @@ class HopfHybridModel:
     def _fit_speed(self, prep: Prepared, timer: _Timer) -> None:
         S, n = self.n_members_, len(prep.mu_t)
         self._train_mu_t, self._train_coef, self._train_centre = prep.mu_t, prep.coef, prep.centre
+        d_params = prep.mu_t * self.mu_s_ + self.mu_c_
         nh = self.omega_harmonics
         # training windows: <= omega_periods periods, <= omega_samples samples per record
         windows, h = [], []
@@ -602,7 +604,7 @@ class HopfHybridModel:
             width=self.omega_width,
             depth=self.omega_depth,
             n_fit=self.omega_fit_iterations,
-            n_adam=self.omega_iterations,
+            n_refine=self.omega_iterations,
             learning_rate=float(self.omega_learning_rate),
             n_sub=n_sub,
             form=self.omega_form,
@@ -624,9 +626,23 @@ class HopfHybridModel:
                 ph = np.unwrap(self._phases(s, i, prep, rho[s, i], pts))
                 theta0[s, i] = ph[0]
                 prof = hs.speed_from_phase(prep.times[i], ph, prep.omega[i], grid)
+                if np.sign(ph[-1] - ph[0]) < 0:
+                    raise ConvergenceError(
+                        f"The model cycle at {self.param_name_}={d_params[i]:g} turns against "
+                        "the measured orbit; the coordinate map lost its orientation."
+                    )
                 g = np.log(prof / self.omega_scale_) if cfg.form == "log" else (
                     prof / self.omega_scale_)
-                targets[s, i] = hs.project(g, grid, nh)
+                c = hs.project(g, grid, nh)
+                # the truncated profile must keep the measured period 2 pi / omega_i
+                B = np.asarray(hs.fourier_design(jnp.asarray(grid), nh))
+                trunc = np.exp(B @ c) if cfg.form == "log" else B @ c
+                ratio = np.mean(1.0 / trunc) * prep.omega[i] / self.omega_scale_
+                if cfg.form == "log":
+                    c[0] += np.log(ratio)
+                else:
+                    c *= ratio
+                targets[s, i] = c
         timer.add("speed_phases", time.perf_counter() - t0)
         # regularisation of NN_Omega by leave-one-orbit-out CV on the profiles (primary member)
         grid_l = (
@@ -636,17 +652,16 @@ class HopfHybridModel:
         )
         key = jax.random.key(self.seed + 1)
         pr = self.primary_
-        w0 = float(np.mean(targets[:, :, 0]))
         fit = hs.profile_trainer(cfg)
         lam_o = grid_l[0]
         self.speed_cv_ = {}
         if len(grid_l) > 1 and n >= 3:
-            om0 = hs.init_speed_params(key, cfg, w0)
             score = []
             for lam in grid_l:
                 held = []
                 for i in range(n):
                     w = (np.arange(n) != i).astype(float)
+                    om0 = hs.init_speed_params(key, cfg, rho[pr], prep.mu_t, targets[pr], w)
                     _, hist = timer.run(
                         "speed_cv", fit, om0, jnp.asarray(rho[pr]), jnp.asarray(prep.mu_t),
                         jnp.asarray(targets[pr]), jnp.asarray(w), jnp.asarray(lam),
@@ -663,11 +678,12 @@ class HopfHybridModel:
             w = windows[i]
             z[i, : len(w)] = prep.zn[i][w][:, list(self.plane_)]
             mask[i, : len(w)] = 1.0
-        refine = hs.series_trainer(cfg, n_steps) if cfg.n_adam > 0 else None
+        refine = hs.series_trainer(cfg, n_steps) if cfg.n_refine > 0 else None
         members, losses = [], []
         for s, k in enumerate(jax.random.split(key, S)):
+            om0 = hs.init_speed_params(k, cfg, rho[s], prep.mu_t, targets[s])
             om, _ = timer.run(
-                "speed_profiles", fit, hs.init_speed_params(k, cfg, w0), jnp.asarray(rho[s]),
+                "speed_profiles", fit, om0, jnp.asarray(rho[s]),
                 jnp.asarray(prep.mu_t), jnp.asarray(targets[s]), jnp.ones(n), jnp.asarray(lam_o),
             )
             if refine is not None:
@@ -702,7 +718,7 @@ class HopfHybridModel:
             xs, ys, gs = [], [], []
             for i in range(len(prep.mu_t)):
                 zn = prep.zn[i]
-                take = np.linspace(0, len(zn) - 1, min(len(zn), 96)).astype(int)
+                take = _one_period(prep, i, POINTS_PER_ORBIT)
                 ph = self._phases(s, i, prep, rho[i], zn[take][:, list(self.plane_)])
                 u = rho[i] * np.stack([np.cos(ph), np.sin(ph)], axis=1)
                 xs.append(np.column_stack([u, np.full(len(ph), prep.mu_t[i])]))
@@ -1357,6 +1373,13 @@ def _spread(values) -> dict[str, float]:
 
 def _nan_list(v: np.ndarray) -> list:
     return [float(x) if np.isfinite(x) else None for x in v]
+
+
+def _one_period(prep: Prepared, i: int, n: int) -> np.ndarray:
+    """``n`` sample indices spread evenly over the first period of record ``i``."""
+    fs = 1.0 / (prep.times[i][1] - prep.times[i][0])
+    n_per = min(len(prep.zn[i]) - 1, int(round(2 * np.pi / prep.omega[i] * fs)))
+    return np.unique(np.linspace(0, n_per, n, endpoint=False).astype(int))
 
 
 def _measured_amplitude(sig: np.ndarray, omega: float, fs: float) -> np.ndarray:

@@ -406,10 +406,12 @@ def minimize_multistart(
     n_restarts: int = 0,
     seed: int = 0,
     maxiter: int = 300,
+    ftol: float = 1e-8,
 ) -> scipy.optimize.OptimizeResult:
     """L-BFGS-B from ``theta0`` and ``n_restarts`` seeded random starts; the best result.
 
-    ``value_and_grad(theta) -> (value, grad)`` (JAX arrays are fine). Non-finite values
+    ``value_and_grad(theta) -> (value, grad)`` (JAX arrays are fine); ``ftol`` is
+    L-BFGS-B's relative tolerance on the objective. Non-finite values
     are reported to the optimiser as a huge value (it then shortens the step).
 
     Raises
@@ -437,7 +439,7 @@ def minimize_multistart(
     for th0 in starts:
         res = scipy.optimize.minimize(
             fun, th0, jac=True, method="L-BFGS-B", bounds=list(zip(lo, hi, strict=True)),
-            options={"maxiter": maxiter},
+            options={"maxiter": maxiter, "ftol": ftol},
         )
         nfev += int(res.nfev)
         if math.isfinite(res.fun) and res.fun < 1e24 and (best is None or res.fun < best.fun):

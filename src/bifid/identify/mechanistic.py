@@ -710,8 +710,9 @@ class OrbitSet:
         """
         M, n = self.n_mesh, self.system.n_states
         Jf = np.asarray(_full_jacobian(self.problem)(jnp.asarray(y), self._args(p, y)))
-        _, _, Vt = np.linalg.svd(Jf)
-        t = Vt[-1]
+        # null vector of the (N, N+1) Jacobian: [J; r^T] t = e_last with a fixed generic r
+        r = np.random.default_rng(12345).standard_normal(Jf.shape[1])
+        t = np.linalg.solve(np.vstack([Jf, r[None, :]]), np.eye(Jf.shape[1])[-1])
         _, dA = _max_abs_with_weights(y[: M * n].reshape(M, n)[:, self._out[0]])
         growth = float(dA @ t[: M * n].reshape(M, n)[:, self._out[0]])
         return int(np.sign(t[-1] * np.sign(growth))) or 1

@@ -1,0 +1,84 @@
+"""Per-system CBC settings that work: gains, signals, sample rates, amplitude grids.
+
+Every gain pair below was chosen from the Floquet multipliers of the *controlled* system
+at converged orbits (``controlled_floquet``; the numbers are in ``docs/cbc.md`` and
+checked by ``tests/test_cbc_stability.py``):
+
+- ``flutter`` -- PP-CBC on ``(h, ḣ)`` with the force on the heave equation (eq. 3.25).
+  The derivative gain is what stabilises: ``kd > 0`` adds damping in proportion to the
+  radial error, which turns the saddle-type unstable LCO (multiplier 1.05-1.16) into a
+  node; ``kp`` only shifts the heave stiffness. ``kp = 50, kd = 40`` keep every
+  non-trivial multiplier below 0.58 on both branches for U = 15-18 m/s. (The thesis's
+  ``kp = kd = -100`` of Example 3.3 belong to another sign convention; with ours they
+  are violently destabilising.)
+- ``hopf`` -- PP-CBC on ``(u1, u2)``, control on ``u1``: ``kp = 1`` gives a radial
+  feedback ``kp (r* - r)/2`` that beats the LCO's instability ``2 r0² = 0.2`` of eq. 3.16
+  (multiplier 0.15); the thesis's ``kp = 0.5, kd = -0.5`` also work (0.73).
+- ``duffing`` -- ``kp = kd = 0.5`` on ``q``: multipliers 0.21 on all three branches
+  (the middle branch is a saddle with multiplier up to 1.11 without control).
+- ``shaw_pierre`` -- ``kp = kd = 1`` on ``x1``: multipliers <= 0.44 (the thesis's 0.01
+  stabilise too, but at 0.976 per period a point takes hundreds of periods to settle).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+__all__ = ["CBCDefaults", "defaults_for"]
+
+
+@dataclass(frozen=True)
+class CBCDefaults:
+    """Settings that make CBC work on one registered system."""
+
+    sample_rate: float = 5000.0
+    outputs: tuple[str, ...] | None = None
+    # phase-plane CBC (autonomous systems)
+    x1: str = ""
+    x2: str = ""
+    kp: float = 1.0
+    kd: float = 1.0
+    amplitude_range: tuple[float, float] = (0.1, 1.0)
+    n_amplitudes: int = 16
+    omega_guess: float = 1.0
+    # forced CBC
+    signal: str = ""
+    n_harmonics: int = 5
+    settle_periods: float = 10.0
+    measure_periods: float = 5.0
+    signal_units: dict[str, str] = field(default_factory=dict)
+    extra: dict[str, Any] = field(default_factory=dict)
+
+
+_DEFAULTS: dict[str, CBCDefaults] = {
+    "flutter": CBCDefaults(
+        sample_rate=5000.0, outputs=("h", "alpha"), x1="h", x2="h_dot", kp=50.0, kd=40.0,
+        amplitude_range=(0.004, 0.036), n_amplitudes=17, omega_guess=15.0,
+        settle_periods=10.0, measure_periods=5.0,
+        signal_units={"h": "m", "alpha": "rad"},
+    ),
+    "hopf": CBCDefaults(
+        sample_rate=200.0, outputs=("u1", "u2"), x1="u1", x2="u2", kp=1.0, kd=0.0,
+        amplitude_range=(0.05, 0.34), n_amplitudes=8, omega_guess=1.0,
+        settle_periods=6.0, measure_periods=3.0,
+    ),
+    "vanderpol": CBCDefaults(
+        sample_rate=200.0, outputs=("z1", "z2"), x1="z1", x2="z1_dot", kp=1.0, kd=1.0,
+        amplitude_range=(0.2, 3.0), n_amplitudes=12, omega_guess=1.0,
+        settle_periods=8.0, measure_periods=3.0,
+    ),
+    "duffing": CBCDefaults(
+        sample_rate=100.0, outputs=("q",), signal="q", kp=0.5, kd=0.5, n_harmonics=5,
+        settle_periods=8.0, measure_periods=3.0,
+    ),
+    "shaw_pierre": CBCDefaults(
+        sample_rate=100.0, outputs=("x1", "x2"), signal="x1", kp=1.0, kd=1.0, n_harmonics=5,
+        settle_periods=10.0, measure_periods=3.0,
+    ),
+}
+
+
+def defaults_for(system_name: str) -> CBCDefaults:
+    """Known-good CBC settings for a registered system (generic ones otherwise)."""
+    return _DEFAULTS.get(system_name, CBCDefaults())

@@ -1,0 +1,190 @@
+"""Virtual rig: integration accuracy, persistence, sampling, noise, saturation, errors."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bifid.cbc import EllipticTarget, FourierTarget, PDController, VirtualRig
+from bifid.cbc._fastfield import check_prepared, prepared_field
+from bifid.errors import BifidInputError, ConvergenceError
+from bifid.simulate import simulate
+from bifid.systems import get_system
+
+HOPF = {"mu": -0.1, "q5": 0.0}
+
+
+@pytest.fixture(scope="module")
+def hopf():
+    return get_system("hopf")
+
+
+def test_free_run_matches_diffrax(hopf):
+    """Check that the rig's sampled RK4 equals bifid.simulate (Dopri8) without control."""
+    rig = VirtualRig(hopf, HOPF, sample_rate=200.0, x0=[0.25, 0.0], record_states=True)
+    m = rig.run(6.0)
+    ref = simulate(hopf, np.array([0.25, 0.0]), m.time, hopf.param_vector(HOPF))
+    assert m.outputs.shape == (1200, 2)
+    np.testing.assert_allclose(m.outputs, ref, atol=1e-9)
+    np.testing.assert_allclose(m.extra["states"], ref, atol=1e-9)
+
+
+def test_state_persists_between_runs(hopf):
+    """Check that two runs continue each other exactly (no reset), clock included."""
+    a = VirtualRig(hopf, HOPF, sample_rate=200.0, x0=[0.2, 0.1])
+    b = VirtualRig(hopf, HOPF, sample_rate=200.0, x0=[0.2, 0.1])
+    m1, m2 = a.run(1.5), a.run(2.5)
+    m = b.run(4.0)
+    np.testing.assert_allclose(np.vstack([m1.outputs, m2.outputs]), m.outputs, atol=1e-14)
+    np.testing.assert_allclose(np.concatenate([m1.time, m2.time]), m.time, atol=1e-12)
+    assert a.time == pytest.approx(4.0)
+
+
+def test_zero_order_hold_control(hopf):
+    """Check the sampled controller against an independent ZOH integration (scipy).
+
+    u_k = kp (x* - u1_k) + kd (0 - u2_k) is computed from the samples and held over each
+    interval; integrating the same piecewise-constant input with solve_ivp must agree.
+    """
+    from scipy.integrate import solve_ivp
+
+    fs, kp, kd, xstar = 50.0, 0.8, 0.3, 0.1
+    # a constant target: elliptic with zero amplitude centred at (xstar, 0)
+    rig = VirtualRig(hopf, HOPF, sample_rate=fs, x0=[0.3, 0.0], derivative="state")
+    rig.set_controller(PDController(kp, kd, "u1", "u2"), EllipticTarget(0.0, 1.0, (xstar, 0.0)))
+    m = rig.run(4.0)
+    x = np.array([0.3, 0.0])
+    for k in range(m.time.shape[0]):
+        u = kp * (xstar - x[0]) + kd * (0.0 - x[1])
+        assert m.control[k] == pytest.approx(u, abs=1e-7)
+
+        def f(t, y, u=u):  # eq. 3.16 with mu = -0.1 (numpy, independent of bifid)
+            g = -0.1 + y[0] ** 2 + y[1] ** 2
+            return np.array([g * y[0] - y[1] + u, g * y[1] + y[0]])
+
+        x = solve_ivp(f, (0, 1 / fs), x, rtol=1e-11, atol=1e-13).y[:, -1]
+
+
+def test_noise_is_seeded_and_has_the_requested_level(hopf):
+    """Check noise std per channel, reproducibility for a seed, difference across seeds."""
+    kw = dict(sample_rate=200.0, x0=[0.2, 0.0], record_states=True)
+    a = VirtualRig(hopf, HOPF, noise={"u1": 1e-3}, seed=3, **kw).run(20.0)
+    b = VirtualRig(hopf, HOPF, noise={"u1": 1e-3}, seed=3, **kw).run(20.0)
+    c = VirtualRig(hopf, HOPF, noise={"u1": 1e-3}, seed=4, **kw).run(20.0)
+    err = a.outputs - a.extra["states"]
+    assert np.std(err[:, 0]) == pytest.approx(1e-3, rel=0.05)
+    assert np.max(np.abs(err[:, 1])) == 0.0
+    np.testing.assert_array_equal(a.outputs, b.outputs)
+    assert not np.allclose(a.outputs, c.outputs)
+
+
+def test_saturation_limits_the_control(hopf):
+    """Check |u| <= saturation and that saturated samples are counted."""
+    rig = VirtualRig(hopf, HOPF, sample_rate=100.0, x0=[0.3, 0.0], saturation=0.01)
+    rig.set_controller(PDController(1.0, 0.0, "u1", "u2"), EllipticTarget(0.0, 1.0))
+    m = rig.run(2.0)
+    assert np.max(np.abs(m.control)) <= 0.01 + 1e-15
+    assert m.saturated > 0
+
+
+def test_derivative_estimate_from_samples(hopf):
+    """Check the filtered difference tracks the true derivative with a small lag."""
+    rig = VirtualRig(hopf, {"mu": 0.0, "q5": 0.0, "a2": 0.0}, sample_rate=1000.0,
+                     x0=[0.5, 0.0], derivative_cutoff=50.0)
+    m = rig.run(8.0)
+    tail = slice(2000, None)
+    true = -0.5 * np.sin(m.time[tail])  # u1 = 0.5 cos t on the neutral centre
+    est = m.signal("u1_dot")[tail]
+    # first-order filter: gain ~1, phase lag ~ ω/ωc = 1/(2π·50) rad
+    assert np.max(np.abs(est - true)) < 0.5 * (1.0 / (2 * math.pi * 50) + 2e-3)
+
+
+def test_forcing_phase_and_generator(hopf):
+    """Check force = γ cos(θ - ψ) with θ continuous across a change of frequency."""
+    duff = get_system("duffing")
+    rig = VirtualRig(duff, sample_rate=100.0)
+    rig.set_forcing(0.02, 1.0, phase=0.3)
+    m1 = rig.run(3.0)
+    np.testing.assert_allclose(m1.force, 0.02 * np.cos(m1.phase - 0.3), atol=1e-15)
+    rig.set_forcing(0.02, 2.0, phase=0.3)
+    m2 = rig.run(1.0)
+    assert m2.phase[0] == pytest.approx((m1.phase[-1] + 1.0 / 100.0) % (2 * math.pi), abs=1e-9)
+    np.testing.assert_allclose(np.diff(m2.phase), 2.0 / 100.0, atol=1e-12)
+
+
+def test_fourier_target_tracks_a_harmonic_reference():
+    """Check the rig's target signal is x*(θ) of eq. 3.3 and the controller follows it."""
+    duff = get_system("duffing")
+    rig = VirtualRig(duff, sample_rate=100.0, derivative="state")
+    rig.set_forcing(0.0, 1.2)
+    c = np.array([0.0, 0.1, 0.0, 0.0, 0.05])  # A0, A1, A2, B1, B2
+    rig.set_controller(PDController(20.0, 6.0, "q", "q_dot"), FourierTarget(c))
+    m = rig.run(30.0)
+    th = m.phase
+    np.testing.assert_allclose(m.target, 0.1 * np.cos(th) + 0.05 * np.sin(2 * th), atol=1e-12)
+    tail = slice(-500, None)
+    assert np.max(np.abs(m.outputs[tail, 0] - m.target[tail])) < 0.03
+
+
+def test_blow_up_trips_the_rig(hopf):
+    """Check a destabilising controller raises ConvergenceError and leaves the rig at rest."""
+    rig = VirtualRig(hopf, HOPF, sample_rate=100.0, x0=[0.5, 0.0])
+    rig.set_controller(PDController(-5.0, 0.0, "u1", "u2"), EllipticTarget(0.0, 1.0))
+    with pytest.raises(ConvergenceError, match="tripped"):
+        rig.run(50.0)
+    assert rig.trips == 1
+    np.testing.assert_array_equal(rig.state, 0.0)
+    assert rig.controller == (None, None)
+    m = rig.run(1.0)  # usable again, at rest
+    assert np.all(m.outputs == 0.0)
+
+
+def test_fast_flutter_field_equals_the_system_field():
+    """Check the rig's prepared flutter field against system.field at several airspeeds."""
+    s = get_system("flutter")
+    fast, generic = prepared_field(s)
+    assert fast is not generic
+    for U in (5.0, 15.0, 18.3, 24.0):
+        assert check_prepared(s, fast, s.param_vector(U=U), np.full(6, 0.2), rtol=1e-11)
+
+
+def test_flutter_rig_short_run_matches_diffrax():
+    """Check the flutter rig (fast field, 5 kHz) against Dopri8 over 0.3 s."""
+    s = get_system("flutter")
+    x0 = np.array([0.01, 0.0, 0.05, 0.0, 0.0, 0.0])
+    rig = VirtualRig(s, {"U": 16.0}, x0=x0, record_states=True)
+    m = rig.run(0.3)
+    ref = simulate(s, x0, m.time, s.param_vector(U=16.0))
+    np.testing.assert_allclose(m.extra["states"], ref, atol=1e-9)
+
+
+@pytest.mark.parametrize(
+    ("kwargs", "match"),
+    [
+        ({"noise": {"nope": 1.0}}, "not outputs"),
+        ({"noise": -1.0}, ">= 0"),
+        ({"outputs": ("u3",)}, "no state"),
+        ({"derivative": "magic"}, "derivative"),
+        ({"sample_rate": 0.0}, "sample_rate"),
+        ({"x0": [1.0]}, "x0"),
+    ],
+)
+def test_bad_rig_settings(hopf, kwargs, match):
+    """Check invalid rig settings raise BifidInputError saying what is wrong."""
+    with pytest.raises(BifidInputError, match=match):
+        VirtualRig(hopf, HOPF, **kwargs)
+
+
+def test_bad_controller_and_runs(hopf):
+    """Check unknown signals, missing targets and bad durations are rejected."""
+    rig = VirtualRig(hopf, HOPF)
+    with pytest.raises(BifidInputError, match="cannot use"):
+        rig.set_controller(PDController(1, 1, "u1", "h_dot"), EllipticTarget(0.1, 1.0))
+    with pytest.raises(BifidInputError, match="needs a target"):
+        rig.set_controller(PDController(1, 1, "u1", "u2"), None)
+    with pytest.raises(BifidInputError, match="duration"):
+        rig.run(-1.0)
+    with pytest.raises(BifidInputError, match="frequency"):
+        rig.set_forcing(0.1)
