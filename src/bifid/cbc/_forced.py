@@ -43,6 +43,7 @@ import numpy as np
 from bifid.cbc._controllers import FourierTarget, PDController
 from bifid.cbc._fourier import (
     HarmonicSecant,
+    coefficient_noise,
     evaluate_series,
     fourier_project,
     whole_periods,
@@ -228,9 +229,8 @@ def _measure(rig: AbstractRig, opts: ForcedCBCOptions, omega: float, settle: flo
     x = m.signal(opts.signal)
     c = fourier_project(np.column_stack([x, m.control]), m.phase, opts.n_harmonics)
     cx, cu = c[:, 0], c[:, 1]
-    k = math.sqrt(2.0 / n)
-    floor = 3.0 * float(np.std(x - evaluate_series(cx, m.phase))) * k
-    ufloor = 3.0 * float(np.std(m.control - evaluate_series(cu, m.phase))) * k
+    floor = coefficient_noise(x - evaluate_series(cx, m.phase))
+    ufloor = coefficient_noise(m.control - evaluate_series(cu, m.phase))
     return _Meas(_to_eq33(cx), cu, m, floor, ufloor)
 
 

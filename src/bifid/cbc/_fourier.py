@@ -17,6 +17,7 @@ from bifid.errors import BifidInputError
 
 __all__ = [
     "HarmonicSecant",
+    "coefficient_noise",
     "estimate_frequency",
     "evaluate_series",
     "fourier_project",
@@ -24,6 +25,22 @@ __all__ = [
     "polar_project",
     "whole_periods",
 ]
+
+
+def coefficient_noise(residual: np.ndarray) -> float:
+    """Noise floor (3σ) of a Fourier coefficient fitted to ``n`` samples with this residual.
+
+    White measurement noise of standard deviation ``σ`` gives coefficients with standard
+    deviation ``σ sqrt(2/n)``. ``σ`` is estimated from *first differences* of the residual
+    (``std(Δe)/√2``), which white noise passes and a slow drift (an unfinished transient)
+    does not: a response that has not settled must not be mistaken for noise and widen
+    the convergence tolerance.
+    """
+    e = np.asarray(residual, dtype=float)
+    if e.shape[0] < 3:
+        return 0.0
+    sigma = float(np.std(np.diff(e))) / math.sqrt(2.0)
+    return 3.0 * sigma * math.sqrt(2.0 / e.shape[0])
 
 
 def whole_periods(n_samples: int, omega: float, sample_rate: float, max_periods: int | None = None

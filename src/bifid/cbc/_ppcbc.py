@@ -44,6 +44,7 @@ from bifid.cbc._controllers import (
 )
 from bifid.cbc._fourier import (
     HarmonicSecant,
+    coefficient_noise,
     estimate_frequency,
     fourier_project,
     periodic_amplitude,
@@ -266,13 +267,13 @@ class _Family:
             # sense of rotation in (x1, x2): sign of the area swept (a1 b2 - b1 a2)
             rot = 1.0 if (c1[1] * c2[2] - c1[2] * c2[1]) >= 0 else -1.0
             aspect = rot * A2 / max(A1, 1e-300)
-            floor = 3.0 * float(np.std(resid)) * math.sqrt(2.0 / n)
+            floor = coefficient_noise(resid)
             return _Response(m, om, A1, np.array([aspect, c1[0], c2[0]]), None, floor)
         xi1 = (x1 - self.origin[0]) / self.scale[0]
         xi2 = (x2 - self.origin[1]) / self.scale[1]
         phi = np.arctan2(xi2, xi1)
         coef = polar_project(phi, np.hypot(xi1, xi2), self.o.n_harmonics)
-        floor = 3.0 * float(np.std(resid)) / abs(self.scale[0]) * math.sqrt(2.0 / n)
+        floor = coefficient_noise(resid) / abs(self.scale[0])
         return _Response(m, om, float(coef[0]), coef[1:].copy(), coef, floor)
 
 
@@ -427,7 +428,20 @@ def ppcbc_scan(
     if grid.ndim != 1 or grid.size < 2 or np.any(np.diff(grid) <= 0) or grid[0] <= 0:
         raise BifidInputError("amplitudes must be an increasing grid of >= 2 positive values.")
     rig.set_parameter(param, value)
-    omega, aspect, origin, scale = _bootstrap(rig, opts, float(grid[0]), omega_guess)
+    points: list[LCOPoint] = []
+    failures: list[PPCBCFailure] = []
+
+    def fail(reason: str, **data: Any) -> None:
+        f = PPCBCFailure(value, reason, dict(data))
+        warnings.warn(f"PP-CBC at {param}={value:g}: {reason}", ConvergenceWarning,
+                      stacklevel=3)
+        failures.append(f)
+
+    try:
+        omega, aspect, origin, scale = _bootstrap(rig, opts, float(grid[0]), omega_guess)
+    except ConvergenceError as exc:
+        fail(f"the controller could not start an oscillation at A*={grid[0]:.4g}: {exc}")
+        return points, failures
     if opts.target == "elliptic":
         fam = _Family(opts, (1.0, 1.0), (0.0, 0.0))
         shape0 = np.array([aspect, origin[0], origin[1]])
@@ -436,48 +450,39 @@ def ppcbc_scan(
         shape0 = np.zeros(2 * opts.n_harmonics)
     scan = _Scanner(rig, opts, fam, omega, shape0)
     evals: list[_Eval] = []
-    points: list[LCOPoint] = []
-    failures: list[PPCBCFailure] = []
 
     def tol_fn(e: _Eval) -> float:
         return opts.tol * e.a_star + e.resp.floor
 
-    for a in grid:
-        try:
+    a = float(grid[0])
+    try:
+        for a in grid:
             e = scan(float(a))
-        except ConvergenceError as exc:
-            f = PPCBCFailure(value, f"the controller did not hold the target A*={a:.4g}: {exc}")
-            warnings.warn(f"PP-CBC at {param}={value:g}: {f.reason}", ConvergenceWarning,
-                          stacklevel=2)
-            failures.append(f)
-            break
-        evals.append(e)
-        if on_iteration is not None:
-            on_iteration(scan.evals)
-        if len(evals) >= 2 and evals[-2].xi * e.xi < 0:
+            evals.append(e)
+            if on_iteration is not None:
+                on_iteration(scan.evals)
+            if len(evals) < 2 or evals[-2].xi * e.xi >= 0:
+                continue
             lo, hi = evals[-2], e
             n0 = scan.evals
             root, _ = _illinois(scan, lo, hi, tol_fn, opts.tol, opts.secant_max)
             if on_iteration is not None:
                 on_iteration(scan.evals)
             if root is None:
-                f = PPCBCFailure(value, "control error did not converge to zero within "
-                                 f"{opts.secant_max} secant iterations",
-                                 {"bracket": [lo.a_star, hi.a_star]})
-                warnings.warn(f"PP-CBC at {param}={value:g}: {f.reason} in "
-                              f"[{lo.a_star:.4g}, {hi.a_star:.4g}].", ConvergenceWarning,
-                              stacklevel=2)
-                failures.append(f)
+                fail(f"control error did not converge to zero within {opts.secant_max} "
+                     f"secant iterations in A* = [{lo.a_star:.4g}, {hi.a_star:.4g}]",
+                     bracket=[lo.a_star, hi.a_star])
             else:
                 pt = _finish_point(rig, opts, fam, root, value, scan.evals - n0 + lo.n + hi.n,
                                    "scan")
                 points.append(pt)
                 if on_point is not None:
                     on_point(pt)
-                # the stability test moved the rig: continue the scan from this amplitude
                 scan.shape = root.shape
-            # re-evaluate the grid point so the next bracket starts from a settled state
+            # the rig moved (refinement, stability test): re-settle on this grid point
             evals[-1] = scan(float(a))
+    except ConvergenceError as exc:
+        fail(f"the controller did not hold the target near A*={a:.4g}: {exc}")
     return points, failures
 
 
@@ -666,9 +671,15 @@ def ppcbc_continuation(
     g0, _ = G(ys[0])
     J = jacobian(ys[0], g0)
 
-    def correct(y_pred: np.ndarray, row: np.ndarray | None, J: np.ndarray
+    def correct(y_pred: np.ndarray, row: np.ndarray | None, J: np.ndarray,
+                max_step: float = math.inf
                 ) -> tuple[np.ndarray | None, _Response | None, np.ndarray, float]:
-        """Broyden–Newton on [G; row.(y - y_pred)] (row None: fixed parameter)."""
+        """Broyden–Newton on [G; row.(y - y_pred)] (row None: fixed parameter).
+
+        Steps longer than ``max_step`` (weighted norm) are shortened: far from the
+        solution a Broyden Jacobian can point anywhere, and the rig must not be sent
+        there.
+        """
         y = y_pred.copy()
         g, resp = G(y)
         Jk = J.copy()
@@ -684,6 +695,9 @@ def ppcbc_continuation(
             if (np.max(np.abs(g)) <= opts.tol * y[0] + resp.floor
                     and np.max(np.abs(dy[:nc])) <= opts.tol * y[0] + np.max(noise_step[:nc])):
                 return y, resp, Jk, float(np.max(np.abs(g)) / y[0])
+            size = math.sqrt(float(dy @ (w * dy)))
+            if size > max_step:
+                dy = dy * (max_step / size)
             y_new = y + dy
             g_new, resp = G(y_new)
             # Broyden: J += (Δg - J Δy) Δyᵀ / (Δyᵀ Δy) in the weighted metric
@@ -714,27 +728,29 @@ def ppcbc_continuation(
         if on_point is not None:
             on_point(pt)
     step = ds
+    tries = 0
     while len(points) < n_points:
         sec = ys[-1] - ys[-2]
         t = sec / math.sqrt(sec @ (w * sec))
         y_pred = ys[-1] + step * t
         row = w * t
         n0 = state["evals"]
-        y_new, resp, J_new, res = correct(y_pred, row, J)
+        y_new, resp, J_new, res = correct(y_pred, row, J, max_step=0.5 * step)
         if y_new is None:
-            # rebuild the Jacobian at the last point and retry once with half the step
+            # back to the last point, fresh Jacobian, smaller step
+            tries += 1
             g_last, _ = G(ys[-1])
             J = jacobian(ys[-1], g_last)
-            step = step / 2.0
-            y_pred = ys[-1] + step * t
-            y_new, resp, J_new, res = correct(y_pred, w * t, J)
-            if y_new is None:
+            if tries > 3:
                 failures.append(PPCBCFailure(float(y_pred[-1]), "Newton–Broyden corrector did "
                                              f"not converge in {opts.newton_max} iterations",
                                              {"residual": res}))
                 warnings.warn(f"PP-CBC continuation stopped near {param}={y_pred[-1]:.4g}: "
                               f"{failures[-1].reason}.", ConvergenceWarning, stacklevel=2)
                 break
+            step = step / 2.0
+            continue
+        tries = 0
         J = J_new
         lam = float(y_new[-1])
         if not (bounds[0] <= lam <= bounds[1]):
@@ -745,6 +761,16 @@ def ppcbc_continuation(
         ys.append(y_new)
         if on_point is not None:
             on_point(pt)
-        # the stability test moved the rig; the next evaluation re-settles it
-        step = min(ds, step * 1.5)
+        # step control: shrink where the branch turns (folds), grow where it is straight
+        s_old, s_new = ys[-2] - ys[-3], ys[-1] - ys[-2]
+        cosang = float(s_old @ (w * s_new)) / math.sqrt(
+            float(s_old @ (w * s_old)) * float(s_new @ (w * s_new)))
+        turn = math.degrees(math.acos(max(-1.0, min(1.0, cosang))))
+        if turn > 20.0:
+            step = max(ds / 16.0, step / 2.0)
+        elif turn < 10.0:
+            step = min(ds, step * 1.5)
+        if state["evals"] - n0 > opts.newton_max // 2:
+            g_new, _ = G(ys[-1])  # a hard corrector: refresh the Jacobian here
+            J = jacobian(ys[-1], g_new)
     return points, failures

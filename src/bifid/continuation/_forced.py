@@ -213,27 +213,10 @@ def frc(
         ``kind="forced"``, ``param="Omega"``; data ``observed_amplitude``, ``phase``,
         ``floquet``; special points "fold".
     """
-    _require_forced(system)
-    lo, hi = _check_range("omega range", *omega_range)
-    if not (math.isfinite(forcing)):
+    if not math.isfinite(forcing):
         raise BifidInputError(f"forcing must be finite, got {forcing!r}.")
-    direction = 1 if hi > lo else -1
-    p = system.param_vector() if p is None else jnp.asarray(p, dtype=jnp.float64)
-    p = p.at[system.index("F")].set(forcing).at[system.index("Omega")].set(lo)
-    span = abs(hi - lo)
-    options = options or ContinuationOptions(ds=0.01, ds_min=1e-10, ds_max=0.1, max_steps=2000)
-    options = options.with_(p_min=min(lo, hi), p_max=max(lo, hi), direction=direction)
-    M = n_mesh
-    iOm = system.index("Omega")
-    problem = forced_problem(system, M, 1)
-    y0, args = _start_solution(system, problem, p, iOm, lo, M, options, "FRC")
-    w = _weights(M, system.n_states, span)
-    t0 = np.zeros_like(y0)
-    t0[-1] = direction
-    result = palc(problem, y0, t0, args, options, weights=w, progress=progress,
-                  correct_start=False)
-    return _forced_branch(system, "forced", "Omega", result.ys, result, p, [iOm], M, options,
-                          observed or system.observed, resolution_tol)
+    return _one_parameter(system, "Omega", omega_range, {"F": forcing}, p, n_mesh, options,
+                          observed, progress, resolution_tol, "FRC")
 
 
 def scurve(
@@ -249,27 +232,34 @@ def scurve(
     resolution_tol: float = 1e-9,
 ) -> Branch:
     """S-curve: continuation in the forcing amplitude ``F`` at fixed ``Omega``."""
-    _require_forced(system)
-    lo, hi = _check_range("forcing range", *forcing_range)
     if not (math.isfinite(omega) and omega > 0):
         raise BifidInputError(f"omega must be a positive finite number, got {omega!r}.")
+    return _one_parameter(system, "F", forcing_range, {"Omega": omega}, p, n_mesh, options,
+                          observed, progress, resolution_tol, "S-curve")
+
+
+def _one_parameter(system, param, rng, fixed, p, n_mesh, options, observed, progress,
+                   resolution_tol, what) -> Branch:
+    """Continuation of forced responses in ``param`` ("Omega" or "F") over ``rng``."""
+    _require_forced(system)
+    lo, hi = _check_range(f"{'omega' if param == 'Omega' else 'forcing'} range", *rng)
     direction = 1 if hi > lo else -1
     p = system.param_vector() if p is None else jnp.asarray(p, dtype=jnp.float64)
-    p = p.at[system.index("Omega")].set(omega).at[system.index("F")].set(lo)
-    span = abs(hi - lo)
+    for name, value in fixed.items():
+        p = p.at[system.index(name)].set(value)
+    i_lam = system.index(param)
+    p = p.at[i_lam].set(lo)
     options = options or ContinuationOptions(ds=0.01, ds_min=1e-10, ds_max=0.1, max_steps=2000)
     options = options.with_(p_min=min(lo, hi), p_max=max(lo, hi), direction=direction)
-    M = n_mesh
-    iF = system.index("F")
-    problem = forced_problem(system, M, 1)
-    y0, args = _start_solution(system, problem, p, iF, lo, M, options, "S-curve")
-    w = _weights(M, system.n_states, span)
+    problem = forced_problem(system, n_mesh, 1)
+    y0, args = _start_solution(system, problem, p, i_lam, lo, n_mesh, options, what)
     t0 = np.zeros_like(y0)
     t0[-1] = direction
-    result = palc(problem, y0, t0, args, options, weights=w, progress=progress,
-                  correct_start=False)
-    return _forced_branch(system, "forced", "F", result.ys, result, p, [iF], M, options,
-                          observed or system.observed, resolution_tol)
+    result = palc(problem, y0, t0, args, options, weights=_weights(n_mesh, system.n_states,
+                                                                    abs(hi - lo)),
+                  progress=progress, correct_start=False)
+    return _forced_branch(system, "forced", param, result.ys, result, p, [i_lam], n_mesh,
+                          options, observed or system.observed, resolution_tol)
 
 
 def backbone(

@@ -277,7 +277,7 @@ def series_trainer(config: SpeedConfig, n_steps: int):
     """Refinement on :math:`\\Xi_\\Omega` (eq. 5.13) of one member's speed.
 
     ``(om, map_params, rho, mu_t, theta0, h, z, mask, lam, omega_scale)
-    -> (om, history (n_refine, n), loss)``.
+    -> (om, residuals at the start (n,), residuals at the end (n,))``.
     """
     static = mlp_static(2, 2 * config.n_harmonics + 1, config.width, config.depth)
     map_static = mlp_static(3, 2, config.map_width, config.map_depth)
@@ -294,14 +294,18 @@ def series_trainer(config: SpeedConfig, n_steps: int):
 
             return jax.vmap(one)(rho, mu_t, theta0, h, z, mask)
 
-        def loss(theta):
-            e = residuals(theta)
-            return jnp.mean(e) + lam * l2(theta["nn"]), e
+        start = residuals(om)
+        scale = jnp.maximum(jnp.mean(start), 1e-12)
 
-        theta, hist, (final, _) = minimise(
+        def loss(theta):
+            # relative to the start, so that lam means what it meant in the profile fit
+            e = residuals(theta)
+            return jnp.mean(e) / scale + lam * l2(theta["nn"]), e
+
+        theta, _, _ = minimise(
             loss, om, n_adam=0, n_lbfgs=config.n_refine, learning_rate=config.learning_rate
         )
-        return theta, hist, final
+        return theta, start, residuals(theta)
 
     return jax.jit(run)
 

@@ -687,14 +687,14 @@ class HopfHybridModel:
                 jnp.asarray(prep.mu_t), jnp.asarray(targets[s]), jnp.ones(n), jnp.asarray(lam_o),
             )
             if refine is not None:
-                om_r, hist, final = timer.run(
+                om_r, res0, res1 = timer.run(
                     "speed_series", refine, om, _index(self.map_params_, s), jnp.asarray(rho[s]),
                     jnp.asarray(prep.mu_t), jnp.asarray(theta0[s]), jnp.asarray(h),
                     jnp.asarray(z), jnp.asarray(mask), jnp.asarray(lam_o),
                     jnp.asarray(self.omega_scale_),
                 )
-                start = float(np.mean(np.asarray(hist)[0]))
-                end_ = float(np.mean(np.asarray(jax.device_get(final))))
+                start = float(np.mean(np.asarray(res0)))
+                end_ = float(np.mean(np.asarray(res1)))
                 # keep the refinement only if it improved eq. 5.13 (it starts from the profiles)
                 if np.isfinite(end_) and end_ <= start:
                     om = om_r

@@ -1,0 +1,100 @@
+"""PP-CBC on the Hopf normal form (Example 3.2) against analytic limit cycles.
+
+``hopf`` in polar form: ṙ = (μ - μ0) r + a2 r³ - q5 r⁵, θ̇ = ω0. LCOs: with q5 = 0,
+r² = -(μ - μ0)/a2 (eq. 3.16, unstable for a2 > 0); with q5 = 1,
+r² = (a2 ± sqrt(a2² + 4(μ - μ0)))/2 (− unstable, + stable), folding at μ0 - a2²/4.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+
+from bifid.cbc import VirtualRig
+from bifid.cbc._ppcbc import PPCBCOptions, ppcbc_continuation, ppcbc_scan
+from bifid.errors import ConvergenceWarning
+from bifid.systems import get_system
+
+OPTS = dict(x1="u1", x2="u2", kp=1.0, kd=0.0, n_harmonics=3, settle_periods=5.0,
+            measure_periods=2.0, watch_periods=10.0)
+
+
+def r_lco(mu: float, q5: float, a2: float = 1.0) -> tuple[float, ...]:
+    if q5 == 0:
+        return (math.sqrt(-mu / a2),)
+    d = math.sqrt(a2**2 + 4 * mu)
+    return (math.sqrt((a2 - d) / 2), math.sqrt((a2 + d) / 2))
+
+
+@pytest.fixture(scope="module")
+def hopf():
+    return get_system("hopf")
+
+
+@pytest.mark.parametrize("target", ["elliptic", "polar"])
+def test_example_3_2_unstable_lco(hopf, target):
+    """Check PP-CBC finds the unstable LCO of eq. 3.16 (λ = -0.1): r = √0.1, unstable."""
+    rig = VirtualRig(hopf, {"mu": -0.1, "q5": 0.0}, sample_rate=100.0)
+    opts = PPCBCOptions(target=target, **OPTS)
+    pts, fails = ppcbc_scan(rig, "mu", -0.1, np.linspace(0.15, 0.33, 4), opts)
+    assert not fails
+    assert len(pts) == 1
+    pt = pts[0]
+    assert pt.amplitude["u1"] == pytest.approx(math.sqrt(0.1), rel=1e-3)
+    assert pt.amplitude["u2"] == pytest.approx(math.sqrt(0.1), rel=1e-3)
+    assert pt.frequency == pytest.approx(1.0, rel=1e-4)
+    assert pt.stable is False
+    assert pt.invasiveness < 1e-2
+    assert pt.growth > 1.0
+
+
+def test_subcritical_pair_with_noise(hopf):
+    """Check both LCOs of the subcritical q5 = 1 case, labels, with 1 % measurement noise."""
+    mu = -0.1
+    r_u, r_s = r_lco(mu, 1.0)
+    noise = 0.01 * r_u
+    rig = VirtualRig(hopf, {"mu": mu, "q5": 1.0}, sample_rate=100.0, noise=noise, seed=1)
+    opts = PPCBCOptions(target="polar", **{**OPTS, "measure_periods": 4.0})
+    pts, fails = ppcbc_scan(rig, "mu", mu, np.linspace(0.2, 1.1, 6), opts)
+    assert not fails
+    assert [p.stable for p in pts] == [False, True]
+    assert pts[0].amplitude["u1"] == pytest.approx(r_u, rel=0.03)
+    assert pts[1].amplitude["u1"] == pytest.approx(r_s, rel=0.03)
+
+
+def test_continuation_round_the_fold(hopf):
+    """Check Newton-Broyden + arclength follows the q5 = 1 branch through its fold.
+
+    Starting on the unstable LCO at μ = -0.1 and moving to smaller μ, the branch folds
+    at μ = -1/4 and returns on the stable side; every point must lie on the analytic
+    curve r⁴ - r² - μ = 0 within 0.5 %.
+    """
+    rig = VirtualRig(hopf, {"mu": -0.1, "q5": 1.0}, sample_rate=100.0)
+    opts = PPCBCOptions(target="polar", stability=False, **OPTS)
+    start, _ = ppcbc_scan(rig, "mu", -0.1, np.linspace(0.2, 0.5, 3), opts)
+    assert len(start) == 1
+    pts, fails = ppcbc_continuation(rig, "mu", start[0], opts, ds=0.5, n_points=6,
+                                    direction=-1, param_scale=0.1)
+    assert not fails
+    assert len(pts) == 6
+    mus = np.array([p.param for p in pts])
+    rs = np.array([p.amplitude["u1"] for p in pts])
+    np.testing.assert_allclose(rs**4 - rs**2 - mus, 0.0, atol=5e-3 * np.max(rs**2))
+    assert np.min(mus) < -0.2  # went towards the fold at -0.25 ...
+    assert rs[-1] > 1 / math.sqrt(2)  # ... and came back on the stable branch (r² > a2/2)
+    assert np.all(np.diff(rs) > 0)
+
+
+def test_destabilising_controller_is_reported_not_recorded(hopf):
+    """Check a controller that cannot hold the orbit yields failures and no points."""
+    rig = VirtualRig(hopf, {"mu": -0.1, "q5": 0.0}, sample_rate=100.0)
+    opts = PPCBCOptions(target="polar", **{**OPTS, "kp": 0.2})  # kp/2 < 2 r0² = 0.2
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        pts, fails = ppcbc_scan(rig, "mu", -0.1, np.linspace(0.15, 0.45, 4), opts)
+    assert pts == []
+    assert fails
+    assert any(issubclass(w.category, ConvergenceWarning) for w in caught)
