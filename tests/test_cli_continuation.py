@@ -44,6 +44,9 @@ def test_systems_json_lists_every_reference_system():
         (("continue", "duffing", "--range", "0", "1"), "forced"),
         (("frc", "hopf", "--forcing", "0.1", "--omega-range", "0.9", "1.1"), "autonomous"),
         (("continue", "flutter", "--range", "5", "10"), "No Hopf point"),
+        (("continue", "hopf", "--range", "0", "1", "--bogus"), "No such option"),
+        (("continue", "hopf", "--range", "0"), "requires 2 arguments"),
+        (("nosuchcommand",), "No such command"),
     ],
 )
 def test_user_errors_exit_2_with_one_line_and_no_traceback(args, needle):

@@ -92,7 +92,7 @@ class _Static:
     field: PreparedField
     n_states: int
     outputs: tuple[int, ...]
-    target_ref: Callable | None
+    target_ref: type | None  # the target class (its compile / fast_reference)
     x1: tuple[int, bool]  # (output index, is derivative)
     x2: tuple[int, bool]
     derivative: str
@@ -127,6 +127,7 @@ def _block_fn(st: _Static) -> Callable:
         key = jax.random.fold_in(dyn["key"], scal[3].astype(jnp.int32))
         noise = jax.random.normal(key, (st.block, len(st.outputs))) * dyn["noise"]
         alpha = dyn["alpha"]
+        aux = st.target_ref.compile(dyn["target"]) if st.target_ref is not None else None
         # forcing at t_k + δ from cos/sin at t_k by rotation (2 transcendentals per sample)
         rot = [(jnp.cos(Om * ci * h), jnp.sin(Om * ci * h)) for ci in (0.5, 1.0)]
 
@@ -159,7 +160,7 @@ def _block_fn(st: _Static) -> Callable:
             if st.target_ref is not None:
                 x1 = pick(st.x1, y, yd)
                 x2 = pick(st.x2, y, yd)
-                r1, r2 = st.target_ref(dyn["target"], x1, x2, theta, Om)
+                r1, r2 = st.target_ref.fast_reference(aux, x1, x2, theta, Om)
                 u = dyn["ctrl_on"] * (dyn["gains"][0] * (r1 - x1) + dyn["gains"][1] * (r2 - x2))
                 ref = jnp.where(dyn["ctrl_on"] > 0, r1, jnp.nan)
             else:
@@ -347,7 +348,7 @@ class VirtualRig(AbstractRig):
         self._forcing_on = False
         self._controller: PDController | None = None
         self._target: AbstractTarget | None = None
-        self._static_target: tuple[Callable | None, tuple[int, bool], tuple[int, bool]] = (
+        self._static_target: tuple[type | None, tuple[int, bool], tuple[int, bool]] = (
             None, (0, False), (0, False))
         self._target_vec = jnp.zeros(1)
         self._gains = jnp.zeros(2)
@@ -453,7 +454,7 @@ class VirtualRig(AbstractRig):
             raise BifidInputError(f"system {self.system.name!r} has no input direction.")
         i1 = self.signal_index(controller.x1)
         i2 = self.signal_index(controller.x2)
-        self._static_target = (type(target).reference, i1, i2)
+        self._static_target = (type(target), i1, i2)
         self._target_vec = jnp.asarray(target.vector())
         self._gains = jnp.asarray([controller.kp, controller.kd])
         self._ctrl_on = 1.0
@@ -495,6 +496,14 @@ class VirtualRig(AbstractRig):
 
     # -- internals ----------------------------------------------------------------------
     def _check_field(self) -> None:
+        # forcing and input directions at the current parameters (cached per change)
+        p = jnp.asarray(self._p)
+        zeros = np.zeros(self.system.n_states)
+        bdir = self.system.forcing_direction or self.system.input_direction
+        b = np.asarray(bdir(p), dtype=float) if bdir is not None else zeros
+        edir = self.system.input_direction
+        e = np.asarray(edir(p), dtype=float) if edir is not None else zeros
+        self._directions = (b, e)
         if self._fast is self._generic:
             return
         scale = np.full(self.system.n_states, 0.1)
@@ -540,11 +549,7 @@ class VirtualRig(AbstractRig):
 
     def _run_samples(self, n: int) -> Measurement:
         big, small = self._block, max(16, self._block // 8)
-        p = jnp.asarray(self._p)
-        bdir = self.system.forcing_direction or self.system.input_direction
-        b = np.asarray(bdir(p), dtype=float) if bdir is not None else np.zeros(self.system.n_states)
-        e = (np.asarray(self.system.input_direction(p), dtype=float)
-             if self.system.input_direction is not None else np.zeros(self.system.n_states))
+        b, e = self._directions
         dt = 1.0 / self._fs
         alpha = 1.0 - math.exp(-2.0 * math.pi * self._cutoff * dt)
         carry = (self._x, self._yprev, self._dfilt, self._uprev)

@@ -54,9 +54,28 @@ def _enable_compilation_cache() -> None:
 
 def main(argv: list[str] | None = None) -> None:
     """Entry point of the ``bifid`` console script."""
+    import typer
+
     _enable_compilation_cache()
     _load_commands()
-    app(args=argv if argv is not None else sys.argv[1:], prog_name="bifid")
+    try:
+        rv = app(args=argv if argv is not None else sys.argv[1:], prog_name="bifid",
+                 standalone_mode=False)
+    except typer.Exit as exc:
+        sys.exit(exc.exit_code)
+    except typer.Abort:
+        print("bifid: error: aborted", file=sys.stderr)
+        sys.exit(130)
+    except Exception as exc:
+        # usage errors (unknown option, missing value) of typer's bundled click: one line
+        if hasattr(exc, "format_message") and hasattr(exc, "exit_code"):
+            ctx = getattr(exc, "ctx", None)
+            name = "" if ctx is None or ctx.info_name == "bifid" else f" {ctx.info_name}"
+            hint = f" (see 'bifid{name} --help')"
+            print(f"bifid: error: {exc.format_message()}{hint}", file=sys.stderr)
+            sys.exit(2 if exc.exit_code == 2 else exc.exit_code)
+        raise
+    sys.exit(rv if isinstance(rv, int) else 0)
 
 
 __all__ = ["app", "fit_app", "main"]

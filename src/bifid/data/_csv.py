@@ -211,6 +211,10 @@ def read_csv_dataset(path: str | os.PathLike[str]) -> xr.Dataset:
                 f"{rwhere}: time is not uniformly sampled (steps from {dt.min():g} to "
                 f"{dt.max():g} s); resample to a uniform grid first."
             )
+        with np.errstate(over="ignore"):
+            rate = float(1.0 / step)
+        if not math.isfinite(rate):
+            raise BifidInputError(f"{rwhere}: time step {step:g} s is too small.")
         c = g["consts"]
         stable_v = c.get("stable", math.nan)
         if math.isnan(stable_v) or stable_v == -1:
@@ -226,10 +230,10 @@ def read_csv_dataset(path: str | os.PathLike[str]) -> xr.Dataset:
             if kind == "lco":
                 freq = c.get("frequency", math.nan)
                 if math.isnan(freq):
-                    freq = estimate_frequency(sig[:, 0], 1.0 / step)
+                    freq = estimate_frequency(sig[:, 0], rate)
                     extra["frequency_estimated"] = 1.0
                 records.append(LCORecord(
-                    param=c["param"], signals=sig, sample_rate=1.0 / step, stable=stable,
+                    param=c["param"], signals=sig, sample_rate=rate, stable=stable,
                     control=per_sample["control"], target=per_sample["target"],
                     frequency=freq, extra=extra,
                 ))
@@ -238,7 +242,7 @@ def read_csv_dataset(path: str | os.PathLike[str]) -> xr.Dataset:
                 if not math.isfinite(curve) or curve != int(curve):
                     raise BifidInputError(f"curve must be an integer, got {curve!r}.")
                 records.append(ForcedRecord(
-                    omega=c["omega"], forcing=c["forcing"], signals=sig, sample_rate=1.0 / step,
+                    omega=c["omega"], forcing=c["forcing"], signals=sig, sample_rate=rate,
                     stable=stable, force=per_sample["force"], control=per_sample["control"],
                     target=per_sample["target"], curve=int(curve), extra=extra,
                     amplitude=None if math.isnan(c.get("amplitude", math.nan))

@@ -66,19 +66,23 @@ def _two_loop(g, S, Y, rho, gamma):
     return -r
 
 
-def _lbfgs(fun, vg, theta0, saved0, n, memory, offset, stop_at, max_backtrack=12):
+def _lbfgs(fun, vg, theta0, saved0, n, memory, offset, stop_at, max_backtrack=20):
     d = theta0.shape[0]
     (f0, aux0), g0 = vg(theta0)
 
-    def step(carry, _):
-        x, f, g, aux, S, Y, rho, gamma, k, saved = carry
+    def iterate(carry):
+        x, f, g, aux, S, Y, rho, gamma, k, saved, npairs, done = carry
         direction = _two_loop(g, S, Y, rho, gamma)
         slope = jnp.dot(direction, g)
         bad = ~(slope < 0) | ~jnp.all(jnp.isfinite(direction))
         direction = jnp.where(bad, -g, direction)
         slope = jnp.where(bad, -jnp.dot(g, g), slope)
-        # first iteration: a unit-length step along -g
-        t0 = jnp.where(k == 0, 1.0 / jnp.maximum(jnp.linalg.norm(g), 1e-12), 1.0)
+        # without curvature pairs the step is a plain gradient step: cap its largest
+        # component at 0.1 (parameters are O(1)); otherwise the quasi-Newton step t = 1
+        t0 = jnp.where(
+            (npairs == 0) | bad, jnp.minimum(1.0, 0.1 / jnp.maximum(jnp.max(jnp.abs(direction)),
+                                                                     1e-300)), 1.0
+        )
 
         def cond(c):
             t, ft, j = c
@@ -101,17 +105,25 @@ def _lbfgs(fun, vg, theta0, saved0, n, memory, offset, stop_at, max_backtrack=12
         Y = jnp.where(good, jnp.roll(Y, -1, axis=0).at[-1].set(y), Y)
         rho = jnp.where(good, jnp.roll(rho, -1).at[-1].set(1.0 / jnp.where(good, sy, 1.0)), rho)
         gamma = jnp.where(good, sy / jnp.maximum(jnp.dot(y, y), 1e-300), gamma)
-        saved = jnp.where(offset + k + 1 == stop_at, x_new, saved)
-        carry = (x_new, f_new, g_new, aux_new, S, Y, rho, gamma, k + 1, saved)
-        return carry, aux_new
+        npairs = npairs + good.astype(npairs.dtype)
+        # a failed line search means no descent is possible at this precision: stop there
+        done = ~accept | (jnp.max(jnp.abs(g_new)) == 0.0)
+        return (x_new, f_new, g_new, aux_new, S, Y, rho, gamma, k, saved, npairs, done)
+
+    def step(carry, _):
+        carry = jax.lax.cond(carry[-1], lambda c: c, iterate, carry)
+        x, f, g, aux, S, Y, rho, gamma, k, saved, npairs, done = carry
+        saved = jnp.where(offset + k + 1 == stop_at, x, saved)
+        carry = (x, f, g, aux, S, Y, rho, gamma, k + 1, saved, npairs, done)
+        return carry, aux
 
     init = (
         theta0, f0, g0, aux0,
-        jnp.zeros((memory, d)), jnp.zeros((memory, d)), jnp.zeros(memory), jnp.asarray(1.0), 0,
-        saved0,
+        jnp.zeros((memory, d)), jnp.zeros((memory, d)), jnp.zeros(memory), jnp.asarray(1.0),
+        jnp.asarray(0), saved0, jnp.asarray(0), jnp.asarray(False),
     )
     carry, hist = jax.lax.scan(step, init, None, length=n)
-    return carry[0], carry[-1], hist
+    return carry[0], carry[9], hist
 
 
 def minimise(

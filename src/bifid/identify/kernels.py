@@ -855,7 +855,7 @@ class GPRegressor:
         if n < 1 or a["y"].shape != (n,) or a["theta"].shape != (2 + d + len(gp.basis),):
             raise BifidInputError(f"GP record {prefix!r}: inconsistent array shapes.")
         gp._set_state(a["theta"], a["x"], a["y"], a["extra_var"], a["x_scale"],
-                      a["x_center"], float(a["y_scale"]))
+                      a["x_center"], float(a["y_scale"].reshape(-1)[0]))
         gp.notes_ = []
         gp.n_train_ = n
         gp.objective_ = float("nan")

@@ -259,6 +259,27 @@ class HopfNormalForm:
         slope = self.omega1 - self.alpha1 * self.c1.imag / self.c1.real
         return self.omega + slope * mu
 
+    def initial_orbit(self, value: float, n_mesh: int) -> tuple[np.ndarray, float]:
+        """Leading-order periodic orbit at parameter ``value``, for seeding a collocation solve.
+
+        Returns mesh values ``x* + 2 R Re(q e^{i tau_k})`` on ``tau_k = 2 pi k / M``
+        (shape ``(M, n)``) and the predicted period ``2 pi / omega(value)``.
+
+        Raises
+        ------
+        BifidInputError
+            If the normal form has no cycle at ``value``.
+        """
+        R = float(self.radius(value))
+        if not np.isfinite(R):
+            raise BifidInputError(
+                f"no cycle at {self.param}={value:.6g}: the {self.criticality} normal form has "
+                f"cycles on the other side of {self.param_value:.8g}."
+            )
+        tau = 2.0 * np.pi * np.arange(n_mesh) / n_mesh
+        V = self.x_eq[None, :] + 2.0 * R * np.real(np.outer(np.exp(1j * tau), self.q))
+        return V, float(2.0 * np.pi / self.frequency(value))
+
     def _state_index(self, state: str) -> int:
         if state not in self.states:
             raise BifidInputError(f"unknown state {state!r}; states: {', '.join(self.states)}.")

@@ -1,0 +1,227 @@
+"""CBC benchmark: virtual-rig speed and a full PP-CBC diagram of the flutter model.
+
+Run from the repository root or the benchmarks directory::
+
+    .venv/bin/python benchmarks/bench_cbc.py            # writes BENCHMARKS.md section "cbc"
+    .venv/bin/python benchmarks/bench_cbc.py --quick    # shorter, prints only
+
+Measures, in one run:
+
+1. simulated seconds per wall-clock second of the flutter rig at 5 kHz with the PP-CBC
+   controller (polar target, n_h = 10) in the loop, median of repeats after JIT (the
+   compile time is reported separately), against a plain ``scipy.integrate.solve_ivp``
+   loop of the same rig (same field with M⁻¹ precomputed in numpy, same sampled
+   controller, zero-order hold between samples);
+2. the wall time of a full PP-CBC diagram: both LCOs at U = 15, 15.5, ..., 17.5 m/s
+   (12 LCOs, amplitude scan, switch-off stability test), noise-free and with measurement
+   noise of 1 % of the smallest heave amplitude, with the error of every LCO against the
+   uncontrolled orbit Newton-corrected at the same U (and its stability against the sign
+   of its Floquet multipliers).
+"""
+
+from __future__ import annotations
+
+import argparse
+import statistics
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+
+import bifid  # noqa: F401
+from _report import write_section
+from bifid.cbc import PDController, PolarTarget, VirtualRig
+from bifid.systems import flutter_matrices, get_system
+
+U_VALUES = (15.0, 15.5, 16.0, 16.5, 17.0, 17.5)
+KP, KD = 50.0, 40.0
+
+
+def _polar_target(rng: np.random.Generator) -> PolarTarget:
+    c = np.zeros(21)
+    c[0] = 0.013
+    c[1:] = 1e-4 * rng.normal(size=20)
+    return PolarTarget(c, scale=(1.0, -15.2))
+
+
+def rig_speed(seconds: float, repeats: int) -> dict:
+    s = get_system("flutter")
+    rig = VirtualRig(s, {"U": 16.0}, x0=[0.012, 0, 0.04, 0, 0, 0])
+    rig.set_controller(PDController(KP, KD, "h", "h_dot"), _polar_target(np.random.default_rng(0)))
+    t0 = time.perf_counter()
+    rig.run(1.0)  # compiles the big block
+    rig.run(0.05)  # and the small one
+    compile_s = time.perf_counter() - t0
+    times = []
+    for _ in range(repeats):
+        t0 = time.perf_counter()
+        rig.run(seconds)
+        times.append(time.perf_counter() - t0)
+    med = statistics.median(times)
+    return {"compile_s": compile_s, "wall_s": med, "sim_s": seconds,
+            "realtime": seconds / med, "all": times}
+
+
+def scipy_baseline(seconds: float) -> dict:
+    """The same sampled rig as a plain Python loop over solve_ivp (one call per sample)."""
+    from scipy.integrate import solve_ivp
+
+    s = get_system("flutter")
+    p = np.asarray(s.param_vector(U=16.0))
+    M, D, K = (np.asarray(a) for a in flutter_matrices(p))
+    Mi = np.linalg.inv(M)
+    A = np.zeros((6, 6))
+    pos, vel = [0, 2, 4], [1, 3, 5]
+    A[pos, vel] = 1.0
+    A[np.ix_(vel, pos)] = -Mi @ K
+    A[np.ix_(vel, vel)] = -Mi @ D
+    nl = np.zeros(6)
+    nl[vel] = -Mi[:, 1]
+    ka2, ka3 = p[10], p[11]
+    tgt = _polar_target(np.random.default_rng(0))
+    c = tgt.coefficients
+    k = np.arange(1, 11)
+    fs = 5000.0
+    dt = 1.0 / fs
+    alpha = 1.0 - np.exp(-2 * np.pi * 100.0 * dt)
+    x = np.array([0.012, 0, 0.04, 0, 0, 0], dtype=float)
+    yprev, dfilt = x[0], 0.0
+
+    def f(t, z, u):
+        a = z[2]
+        dz = A @ z + nl * (ka2 * a * a + ka3 * a**3)
+        dz[1] += u
+        return dz
+
+    n = int(seconds * fs)
+    t0 = time.perf_counter()
+    for _ in range(n):
+        y = x[0]
+        dfilt = dfilt + alpha * ((y - yprev) * fs - dfilt)
+        yprev = y
+        xi1, xi2 = y, dfilt / -15.2
+        rho = np.hypot(xi1, xi2)
+        cph, sph = (xi1 / rho, xi2 / rho) if rho > 0 else (1.0, 0.0)
+        phi = np.arctan2(sph, cph)
+        r = c[0] + c[1:11] @ np.cos(k * phi) + c[11:] @ np.sin(k * phi)
+        u = KP * (r * cph - y) + KD * (-15.2 * r * sph - dfilt)
+        x = solve_ivp(f, (0.0, dt), x, args=(u,), rtol=1e-9, atol=1e-12).y[:, -1]
+    wall = time.perf_counter() - t0
+    return {"wall_s": wall, "sim_s": seconds, "realtime": seconds / wall}
+
+
+def diagram(noise_rel: float | None) -> dict:
+    """Both LCOs at each U by the PP-CBC amplitude scan; errors against Newton truth."""
+    import warnings
+
+    from bifid.cbc._ppcbc import PPCBCOptions, ppcbc_sweep
+    from bifid.cbc._truth import centred_amplitudes, correct_orbit, orbit_from_samples
+
+    s = get_system("flutter")
+    noise = None
+    if noise_rel:
+        # 1 % of the smallest heave amplitude of the diagram (unstable LCO at 17.5 m/s),
+        # and the same fraction of its pitch amplitude
+        noise = {"h": noise_rel * 0.00743, "alpha": noise_rel * 0.02157}
+    rig = VirtualRig(s, {"U": U_VALUES[0]}, noise=noise, seed=11, record_states=True)
+    opts = PPCBCOptions(measure_periods=8.0 if noise else 4.0, settle_periods=6.0)
+    grid = np.linspace(0.004, 0.036, 17)
+    t0 = time.perf_counter()
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        pts, fails = ppcbc_sweep(rig, "U", U_VALUES, grid, opts, omega_guess=15.0)
+    wall = time.perf_counter() - t0
+    rows = []
+    for pt in pts:
+        m = pt.measurement
+        V = orbit_from_samples(m.extra["states"], pt.frequency, m.sample_rate)
+        Vc, _T = correct_orbit(s, "U", pt.param, V, 2 * np.pi / pt.frequency)
+        a = centred_amplitudes(Vc)
+        rows.append({
+            "U": pt.param, "stable": pt.stable,
+            "h": pt.amplitude["h"], "h_true": a[0], "err_h": pt.amplitude["h"] / a[0] - 1,
+            "alpha": pt.amplitude["alpha"], "alpha_true": a[2],
+            "err_alpha": pt.amplitude["alpha"] / a[2] - 1,
+            "inv": pt.invasiveness, "growth": pt.growth, "evals": pt.iterations,
+        })
+    return {"wall_s": wall, "sim_s": rig.time, "rows": rows, "failures": fails,
+            "warnings": [str(w.message) for w in caught]}
+
+
+def _table(d: dict) -> str:
+    lines = ["| U [m/s] | label | h [mm] | h truth | err h | α [rad] | α truth | err α | "
+             "u_rms/feedback | growth/period |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in d["rows"]:
+        lab = {True: "stable", False: "unstable", None: "?"}[r["stable"]]
+        lines.append(
+            f"| {r['U']:.1f} | {lab} | {1e3 * r['h']:.4f} | {1e3 * r['h_true']:.4f} | "
+            f"{100 * r['err_h']:+.2f} % | {r['alpha']:.5f} | {r['alpha_true']:.5f} | "
+            f"{100 * r['err_alpha']:+.2f} % | {r['inv']:.1e} | {r['growth']:.3f} |")
+    return "\n".join(lines)
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--quick", action="store_true", help="rig speed only, no file written")
+    args = ap.parse_args()
+    speed = rig_speed(4.0, 5)
+    base = scipy_baseline(0.2 if args.quick else 0.5)
+    ratio = speed["realtime"] / base["realtime"]
+    print(f"rig: {speed['realtime']:.0f}x real time (compile {speed['compile_s']:.1f} s); "
+          f"solve_ivp loop: {base['realtime']:.2f}x; ratio {ratio:.0f}")
+    if args.quick:
+        return
+    clean = diagram(None)
+    print(f"diagram (noise-free): {clean['wall_s']:.1f} s wall, {len(clean['rows'])} LCOs")
+    print(_table(clean))
+    noisy = diagram(0.01)
+    print(f"diagram (1 % noise): {noisy['wall_s']:.1f} s wall, {len(noisy['rows'])} LCOs")
+    print(_table(noisy))
+    md = [
+        "## cbc — virtual rig and PP-CBC (flutter, 5 kHz)",
+        "",
+        "`benchmarks/bench_cbc.py`. Rig: flutter model at U = 16 m/s sampled at 5 kHz with the "
+        "PP-CBC controller (polar target, n_h = 10, kp = 50, kd = 40, derivative from "
+        "samples) evaluated on every sample, zero-order hold, RK4 per sample interval, one "
+        "compiled `lax.scan` per 4096-sample block. Baseline: the same sampled rig as a "
+        "Python loop calling `scipy.integrate.solve_ivp` once per sample interval (numpy "
+        "field with M⁻¹ precomputed, rtol 1e-9).",
+        "",
+        "| | simulated s / wall s | wall for the run |",
+        "|---|---|---|",
+        f"| bifid VirtualRig (median of 5 × {speed['sim_s']:.0f} s) | "
+        f"**{speed['realtime']:.0f}×** | {speed['wall_s']:.3f} s |",
+        f"| solve_ivp loop ({base['sim_s']} s simulated) | {base['realtime']:.2f}× | "
+        f"{base['wall_s']:.1f} s |",
+        f"| speed-up | **{speed['realtime'] / base['realtime']:.0f}×** | |",
+        "",
+        f"JIT compile of the rig loop (both block sizes): {speed['compile_s']:.1f} s.",
+        "",
+        f"### Full PP-CBC diagram: 12 LCOs (both branches at U = "
+        f"{', '.join(f'{u:g}' for u in U_VALUES)} m/s)",
+        "",
+        "Amplitude scan (17 target amplitudes, 4–36 mm), Picard on the polar target's "
+        "shape, Illinois secant on Ξ, switch-off stability test. Truth: the uncontrolled "
+        "orbit Newton-corrected (Fourier collocation, 64 points) at the same U from the "
+        "rig's true states. Amplitudes are `max|x − x̄|` (centred).",
+        "",
+        f"**Noise-free: {clean['wall_s']:.0f} s wall** for {clean['sim_s']:.0f} s of rig "
+        f"time, {len(clean['rows'])} LCOs, {len(clean['failures'])} failures.",
+        "",
+        _table(clean),
+        "",
+        f"**Measurement noise 1 % of the smallest heave amplitude** (σ_h = 74 µm, "
+        f"σ_α = 0.22 mrad, 8 measured periods): {noisy['wall_s']:.0f} s wall, "
+        f"{len(noisy['rows'])} LCOs, {len(noisy['failures'])} failures.",
+        "",
+        _table(noisy),
+    ]
+    write_section("cbc", "\n".join(md))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,91 @@
+"""`bifid cbc`: JSON contract, dataset written point by point, --resume, failures reported."""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from bifid.cli import _load_commands, app
+from bifid.data import load_dataset
+
+_load_commands()
+RUNNER = CliRunner()
+
+HOPF_ARGS = ["hopf", "--protocol", "ppcbc", "--set", "q5=1", "--values=-0.1",
+             "--amplitude-range", "0.2", "1.1", "--n-amplitudes", "6", "--measure-periods", "2",
+             "--settle-periods", "5", "--n-harmonics", "3", "--no-truth", "--quiet", "--json"]
+
+
+def invoke(args):
+    r = RUNNER.invoke(app, ["cbc", *args])
+    return r, (json.loads(r.stdout) if r.stdout.strip().startswith("{") else None)
+
+
+def test_ppcbc_json_dataset_and_resume(tmp_path):
+    """Check points in JSON and in the dataset, then that --resume re-records nothing."""
+    out = tmp_path / "hopf.nc"
+    r, data = invoke([*HOPF_ARGS, "--out", str(out)])
+    assert r.exit_code == 0, r.stderr
+    r_u = math.sqrt((1 - math.sqrt(0.6)) / 2)
+    r_s = math.sqrt((1 + math.sqrt(0.6)) / 2)
+    pts = data["points"]
+    assert [p["stable"] for p in pts] == [False, True]
+    assert pts[0]["amplitude"]["u1"] == pytest.approx(r_u, rel=2e-3)
+    assert pts[1]["amplitude"]["u1"] == pytest.approx(r_s, rel=2e-3)
+    assert all(p["mu"] == -0.1 and p["control_rms"] >= 0 for p in pts)
+    assert data["settings"]["protocol"] == "ppcbc" and data["complete"] is True
+    ds = load_dataset(out)
+    assert ds.attrs["bifid_kind"] == "lco" and ds.sizes["record"] == 2
+    assert json.loads(ds.attrs["settings"])["options"]["kp"] == 1.0
+    np.testing.assert_array_equal(ds["stable"].values, [0, 1])
+    # signals are centred and cover whole periods; the control is recorded
+    assert np.abs(ds["signals"].isel(record=0).mean("time")).max() < 1e-3
+    assert float(ds["control_rms"].max()) < 1e-3
+
+    r, again = invoke([*HOPF_ARGS, "--out", str(out), "--resume"])
+    assert r.exit_code == 0, r.stderr
+    assert again["skipped_existing"] == 2 and again["points"] == []
+    assert load_dataset(out).sizes["record"] == 2
+
+
+def test_failures_are_reported_and_not_recorded(tmp_path):
+    """Check a value without LCOs (beyond the fold at -1/4): exit 3, failure in JSON, no record."""
+    out = tmp_path / "h.nc"
+    args = [a if a != "--values=-0.1" else "--values=-0.1,-0.3" for a in HOPF_ARGS]
+    r, data = invoke([*args, "--out", str(out)])
+    assert r.exit_code == 3
+    assert data["complete"] is False and data["failures"]
+    assert "error" in r.stderr
+    ds = load_dataset(out)
+    assert set(np.round(ds["param"].values, 6)) == {-0.1}
+
+
+@pytest.mark.parametrize(
+    ("args", "needle"),
+    [
+        (["duffing", "--protocol", "ppcbc"], "forced"),
+        (["hopf", "--protocol", "scurve"], "autonomous"),
+        (["hopf", "--protocol", "magic"], "ppcbc, scurve or frc"),
+        (["hopf", "--protocol", "ppcbc", "--noise", "u9=1"], "not outputs"),
+        (["duffing", "--protocol", "scurve", "--omega", "1.05"], "forcing-range"),
+    ],
+)
+def test_bad_invocations(tmp_path, args, needle):
+    """Check user errors exit 2 with a one-line message saying what is wrong."""
+    r = RUNNER.invoke(app, ["cbc", *args, "--out", str(tmp_path / "x.nc"), "--quiet"])
+    assert r.exit_code == 2
+    assert needle in r.stderr
+
+
+def test_existing_output_needs_resume(tmp_path):
+    """Check an existing --out is never overwritten without --resume."""
+    out = tmp_path / "x.nc"
+    out.write_bytes(b"not a dataset")
+    r = RUNNER.invoke(app, ["cbc", "hopf", "--protocol", "ppcbc", "--values=-0.1", "--out",
+                            str(out)])
+    assert r.exit_code == 2 and "--resume" in r.stderr
+    assert out.read_bytes() == b"not a dataset"

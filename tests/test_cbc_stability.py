@@ -1,0 +1,84 @@
+"""Controller gains that stabilise (Floquet multipliers of the controlled system) and the
+switch-off stability test (Fig. 3.18)."""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from bifid.cbc import EllipticTarget, FourierTarget, PDController, VirtualRig
+from bifid.cbc._defaults import defaults_for
+from bifid.cbc._fourier import fourier_project
+from bifid.cbc._stability import controlled_floquet, switch_off_test
+from bifid.cbc._truth import correct_forced
+from bifid.systems import get_system
+
+R0 = math.sqrt(0.1)
+
+
+@pytest.fixture(scope="module")
+def hopf_orbit():
+    s = get_system("hopf")
+    p = np.asarray(s.param_vector(mu=-0.1, q5=0.0))
+    tau = 2 * np.pi * np.arange(32) / 32
+    return s, p, np.stack([R0 * np.cos(tau), R0 * np.sin(tau)], axis=1)
+
+
+def test_hopf_gains_stabilise_the_unstable_lco(hopf_orbit):
+    """Check the default and the thesis's gains stabilise the LCO of eq. 3.16 (Fig. 3.9).
+
+    Uncontrolled: non-trivial multiplier exp(2π · 2 r0²) = exp(0.4π) ≈ 3.51. Controlled:
+    the radial dynamics gain -kp/2, so |μ| = exp(2π (0.2 - kp/2)).
+    """
+    s, p, V = hopf_orbit
+    target = EllipticTarget(R0, 1.0)
+    mu, fmax = controlled_floquet(s, PDController(0.0, 0.0, "u1", "u2"), target, V, 2 * np.pi, p)
+    assert fmax == pytest.approx(math.exp(0.4 * math.pi), rel=1e-3)
+    d = defaults_for("hopf")
+    mu, fmax = controlled_floquet(s, PDController(d.kp, d.kd, "u1", "u2"), target, V,
+                                  2 * np.pi, p)
+    assert np.min(np.abs(mu - 1.0)) < 1e-6  # the trivial multiplier
+    assert fmax == pytest.approx(math.exp(2 * math.pi * (0.2 - d.kp / 2)), rel=1e-3)
+    _, fmax_thesis = controlled_floquet(s, PDController(0.5, -0.5, "u1", "u2"), target, V,
+                                        2 * np.pi, p)
+    assert fmax_thesis < 1.0
+
+
+def test_duffing_gains_stabilise_the_middle_branch():
+    """Check kp = kd = 0.5 make the saddle of the duffing S-curve stable (all |μ| < 1)."""
+    s = get_system("duffing")
+    Om, F = 1.05, 0.0145
+    p = np.asarray(s.param_vector(F=F, Omega=Om))
+    tau = 2 * np.pi * np.arange(32) / 32
+    # the middle-branch response (amplitude ~0.45) from a single-harmonic guess
+    V0 = np.stack([0.45 * np.cos(tau - 2.45), -0.45 * Om * np.sin(tau - 2.45)], axis=1)
+    V = correct_forced(s, Om, F, V0, p=p, n_mesh=32)
+    c = fourier_project(V[:, 0], tau, 5)
+    c[0] *= 2.0
+    target = FourierTarget(c)
+    _, f_open = controlled_floquet(s, PDController(0.0, 0.0, "q", "q_dot"), target, V,
+                                   2 * np.pi / Om, p, forcing=(F, Om, 0.0))
+    assert f_open > 1.0  # a saddle without control
+    d = defaults_for("duffing")
+    _, f_ctrl = controlled_floquet(s, PDController(d.kp, d.kd, "q", "q_dot"), target, V,
+                                   2 * np.pi / Om, p, forcing=(F, Om, 0.0))
+    assert f_ctrl < 0.5
+
+
+def test_switch_off_labels():
+    """Check the switch-off test: unstable LCO of eq. 3.16 leaves, the stable one stays."""
+    s = get_system("hopf")
+    c = PDController(1.0, 0.0, "u1", "u2")
+    r_u = math.sqrt((1 - math.sqrt(1 - 0.4)) / 2)  # q5 = 1, mu = -0.1
+    r_s = math.sqrt((1 + math.sqrt(1 - 0.4)) / 2)
+    for r, expected in ((r_u, False), (r_s, True)):
+        rig = VirtualRig(s, {"mu": -0.1, "q5": 1.0}, sample_rate=100.0)
+        t = EllipticTarget(r, 1.0)
+        rig.set_controller(c, t)
+        rig.run(40.0)
+        res, _ = switch_off_test(rig, "u1", r, 1.0, controller=c,
+                                 nudged_target=EllipticTarget(0.95 * r, 1.0), restore_target=t)
+        assert res.stable is expected
+        assert (res.growth > 1.0) is (not expected)
