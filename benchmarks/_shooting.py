@@ -39,7 +39,15 @@ Setup = Callable[[float], tuple[Callable, Callable, Callable]]
 
 @dataclass(frozen=True)
 class ShootingOptions:
-    """Numbers of the shooting continuation (step control mirrors ``ContinuationOptions``)."""
+    """Numbers of the shooting continuation (step control mirrors ``ContinuationOptions``).
+
+    ``ds, ds_min, ds_max, max_steps, p_min, p_max, growth`` as in bifid; ``rtol, atol,
+    method`` go to ``solve_ivp``; ``xtol`` to ``root`` (hybr); a corrected point is
+    accepted when ``max|F| <= ftol * max(1, max|x0|)``; ``weight_x`` weighs ``x0`` in the
+    arclength norm (``T`` and the parameter weigh 1); a step grows after at most
+    ``easy_nfev`` flow integrations, halves after ``2 * easy_nfev``; ``max_nfev`` caps the
+    integrations of one ``root`` call.
+    """
 
     ds: float = 1e-3
     ds_min: float = 1e-9
@@ -168,14 +176,16 @@ class _Shooter:
             return F, J
 
         try:
-            sol = root(fun, z_guess, jac=True, method="hybr", options={"xtol": self.o.xtol, "maxfev": self.o.max_nfev})
+            sol = root(fun, z_guess, jac=True, method="hybr",
+                       options={"xtol": self.o.xtol, "maxfev": self.o.max_nfev})
         except FloatingPointError:
             return z_guess, False, 0, None, None
         z = sol.x
         if not np.array_equal(z, last["z"]):
             fun(z)
         scale = max(1.0, float(np.max(np.abs(z[: self.n]))))
-        ok = bool(np.all(np.isfinite(last["F"])) and np.max(np.abs(last["F"])) <= self.o.ftol * scale)
+        F = last["F"]
+        ok = bool(np.all(np.isfinite(F)) and np.max(np.abs(F)) <= self.o.ftol * scale)
         return z, ok, int(last["n"]), last["J"], last["Phi"]
 
 

@@ -16,7 +16,7 @@ _load_commands()
 RUNNER = CliRunner()
 
 HOPF_ARGS = ["hopf", "--protocol", "ppcbc", "--set", "q5=1", "--values=-0.1",
-             "--amplitude-range", "0.2", "1.1", "--n-amplitudes", "6", "--measure-periods", "2",
+             "--amplitude-range", "0.2", "1.1", "--n-amplitudes", "4", "--measure-periods", "2",
              "--settle-periods", "5", "--n-harmonics", "3", "--no-truth", "--quiet", "--json"]
 
 

@@ -45,7 +45,7 @@ def test_systems_json_lists_every_reference_system():
         (("frc", "hopf", "--forcing", "0.1", "--omega-range", "0.9", "1.1"), "autonomous"),
         (("continue", "flutter", "--range", "5", "10"), "No Hopf point"),
         (("continue", "hopf", "--range", "0", "1", "--bogus"), "No such option"),
-        (("continue", "hopf", "--range", "0"), "requires 2 arguments"),
+        (("continue", "hopf", "--range", "0", "x"), "Invalid value"),
         (("nosuchcommand",), "No such command"),
     ],
 )

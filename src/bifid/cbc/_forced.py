@@ -638,7 +638,15 @@ def frc_cbc(
         J = Jn
         record(ynew, info)
         ys.append(ynew)
-        ds = min(opts.ds_max, ds * 1.3)
+        turn = 0.0
+        if len(ys) >= 3:
+            a_, b_ = ys[-2] - ys[-3], ys[-1] - ys[-2]
+            cosang = float(a_ @ (W * b_)) / math.sqrt(float(a_ @ (W * a_)) * float(b_ @ (W * b_)))
+            turn = math.degrees(math.acos(max(-1.0, min(1.0, cosang))))
+        if turn > opts.max_turn:
+            ds = max(opts.ds / 8, ds * 0.5)
+        elif turn < opts.max_turn / 2:
+            ds = min(opts.ds_max, ds * 1.3)
         om = float(ynew[2])
         if (om - w1) * direction > 0 or (om - w0) * direction < 0:
             break

@@ -175,6 +175,8 @@ class LCOPoint:
         Rig evaluations (settle + measure) spent on this point.
     branch : str
         "scan" or "continuation".
+    signal : str
+        The controller's first signal ``x1`` (whose target ``measurement.target`` is).
     """
 
     param: float
@@ -191,6 +193,7 @@ class LCOPoint:
     residual: float = math.nan
     iterations: int = 0
     branch: str = "scan"
+    signal: str = ""
 
     def to_json(self, param_name: str = "param") -> dict[str, Any]:
         return {
@@ -513,7 +516,8 @@ def _make_point(rig, opts, fam, target, resp: _Response, value, residual, n_eval
     trk = float(np.sqrt(np.mean((m.target - x1) ** 2)) / max(np.std(x1), 1e-300))
     pt = LCOPoint(param=value, target=target, measurement=m, frequency=om, amplitude=amps,
                   offset=offs, control_rms=u_rms, invasiveness=inv, tracking_error=trk,
-                  residual=float(residual), iterations=int(n_evals), branch=branch)
+                  residual=float(residual), iterations=int(n_evals), branch=branch,
+                  signal=opts.x1)
     if opts.stability:
         res = _stability(rig, opts, fam, target, resp)
         pt.stable, pt.growth = res.stable, res.growth

@@ -84,7 +84,10 @@ def lco_record(pt: LCOPoint, protocol: str):
         extra[f"offset_{n}"] = float(pt.offset[n])
         extra[f"amp_{n}"] = float(pt.amplitude[n])
     extra.update(_target_extra(pt.target))
-    target = m.target - offsets[0] if np.all(np.isfinite(m.target)) else None
+    target = None
+    if np.all(np.isfinite(m.target)):
+        # the target is x1*: centre it like x1 (when x1 is an output)
+        target = m.target - float(pt.offset.get(pt.signal, 0.0))
     return LCORecord(
         param=pt.param,
         signals=m.outputs - offsets[None, :],

@@ -25,14 +25,14 @@ from jax.flatten_util import ravel_pytree
 Array = jnp.ndarray
 
 
-def _adam(vg, theta0, saved0, n, learning_rate, stop_at):
+def _adam(vg, theta0, saved0, n, learning_rate, stop_at, mask):
     sched = optax.cosine_decay_schedule(learning_rate, n, alpha=0.05)
     opt = optax.adam(sched)
 
     def step(carry, k):
         th, st, saved = carry
         (value, aux), grad = vg(th)
-        updates, st_new = opt.update(grad, st, th)
+        updates, st_new = opt.update(grad * mask, st, th)
         th_new = optax.apply_updates(th, updates)
         ok = jnp.isfinite(value) & jnp.all(jnp.isfinite(th_new))
         th = jnp.where(ok, th_new, th)
@@ -66,8 +66,16 @@ def _two_loop(g, S, Y, rho, gamma):
     return -r
 
 
-def _lbfgs(fun, vg, theta0, saved0, n, memory, offset, stop_at, max_backtrack=20):
+def _lbfgs(fun, vg, theta0, saved0, n, memory, offset, stop_at, mask, limit,
+           max_backtrack=20):
     d = theta0.shape[0]
+
+    vg_raw = vg
+
+    def vg(x):
+        (f, aux), g = vg_raw(x)
+        return (f, aux), g * mask
+
     (f0, aux0), g0 = vg(theta0)
 
     def iterate(carry):
@@ -107,7 +115,7 @@ def _lbfgs(fun, vg, theta0, saved0, n, memory, offset, stop_at, max_backtrack=20
         gamma = jnp.where(good, sy / jnp.maximum(jnp.dot(y, y), 1e-300), gamma)
         npairs = npairs + good.astype(npairs.dtype)
         # a failed line search means no descent is possible at this precision: stop there
-        done = ~accept | (jnp.max(jnp.abs(g_new)) == 0.0)
+        done = ~accept | (jnp.max(jnp.abs(g_new)) == 0.0) | (k + 1 >= limit)
         return (x_new, f_new, g_new, aux_new, S, Y, rho, gamma, k, saved, npairs, done)
 
     def step(carry, _):
@@ -120,7 +128,7 @@ def _lbfgs(fun, vg, theta0, saved0, n, memory, offset, stop_at, max_backtrack=20
     init = (
         theta0, f0, g0, aux0,
         jnp.zeros((memory, d)), jnp.zeros((memory, d)), jnp.zeros(memory), jnp.asarray(1.0),
-        jnp.asarray(0), saved0, jnp.asarray(0), jnp.asarray(False),
+        jnp.asarray(0), saved0, jnp.asarray(0), jnp.asarray(limit) <= 0,
     )
     carry, hist = jax.lax.scan(step, init, None, length=n)
     return carry[0], carry[9], hist
@@ -135,6 +143,8 @@ def minimise(
     learning_rate: float,
     memory_size: int = 10,
     stop_at: Array | int | None = None,
+    mask=None,
+    lbfgs_limit: Array | int | None = None,
 ):
     """Minimise ``loss(theta) -> (value, aux)``: Adam then L-BFGS.
 
@@ -152,6 +162,12 @@ def minimise(
     stop_at : int or traced int, optional
         Return the parameters after this many iterations (early stopping chosen at run time
         without recompiling; 0 returns ``theta0``). Default: all iterations.
+    mask : pytree like ``theta0`` of 0/1, optional
+        Only parameters with mask 1 move (the gradient is multiplied by the mask), so stages
+        that train different parts can share one compiled loop.
+    lbfgs_limit : int or traced int, optional
+        L-BFGS stops after this many iterations (``<= n_lbfgs``; traced, so one compiled
+        loop serves different budgets). L-BFGS also stops when a line search fails.
 
     Returns
     -------
@@ -162,6 +178,10 @@ def minimise(
     final : (value, aux) at ``theta``
     """
     flat0, unravel = ravel_pytree(theta0)
+    mask_flat = (
+        jnp.ones_like(flat0) if mask is None else ravel_pytree(mask)[0].astype(flat0.dtype)
+    )
+    limit = n_lbfgs if lbfgs_limit is None else lbfgs_limit
 
     def flat_loss(x):
         return loss(unravel(x))
@@ -174,11 +194,12 @@ def minimise(
     saved = flat0
     chunks = []
     if n_adam > 0:
-        x, saved, hist = _adam(vg, x, saved, n_adam, learning_rate, stop_at)
+        x, saved, hist = _adam(vg, x, saved, n_adam, learning_rate, stop_at, mask_flat)
         chunks.append(hist)
     if n_lbfgs > 0:
         x, saved, hist = _lbfgs(
-            lambda z: flat_loss(z)[0], vg, x, saved, n_lbfgs, memory_size, n_adam, stop_at
+            lambda z: flat_loss(z)[0], vg, x, saved, n_lbfgs, memory_size, n_adam, stop_at,
+            mask_flat, limit,
         )
         chunks.append(hist)
     x = saved

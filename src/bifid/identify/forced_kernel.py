@@ -554,9 +554,16 @@ class ForcedKernelModel:
 
     Parameters
     ----------
-    forcing_scale : float or "fit"
+    forcing_scale : float, "fit" or "auto"
         ``κ`` in ``Γ = κF``. A number is used as given (1.0: the thesis's Γ = F); "fit"
-        maximises the marginal likelihood of ``b`` (module docstring; needs several Ω).
+        maximises the marginal likelihood of ``b`` (module docstring; needs several Ω, or
+        ``linear_frequency``); "auto" fits when the data hold several forcing frequencies
+        or ``linear_frequency`` is given, else uses 1.0 and says so in ``notes_``.
+    linear_frequency : float, optional
+        A known small-amplitude natural frequency ω₀ [rad/s] (hammer test, or the first
+        point of a measured backbone). With one forcing frequency it identifies κ by least
+        squares of ``Ω_j + κ e_j = ω₀ + c₁ρ_j² + c₂ρ_j⁴`` (``b(0) = ω₀``, eq. 6.9); with
+        several it only gives the starting value of the likelihood fit.
     selection : {"ml", "loo"}
         Hyperparameter criterion of the three GPs (marginal likelihood or closed-form
         leave-one-out predictive probability).
@@ -589,7 +596,8 @@ class ForcedKernelModel:
     def __init__(
         self,
         *,
-        forcing_scale: float | Literal["fit"] = 1.0,
+        forcing_scale: float | Literal["fit", "auto"] = "auto",
+        linear_frequency: float | None = None,
         selection: Literal["ml", "loo"] = "ml",
         a_target: Literal["eq6.19", "phase"] = "eq6.19",
         a_basis: tuple[tuple[int, int], ...] = ((1, 0), (3, 0)),
@@ -604,6 +612,7 @@ class ForcedKernelModel:
         seed: int = 0,
     ) -> None:
         self.forcing_scale = forcing_scale
+        self.linear_frequency = linear_frequency
         self.selection = selection
         self.a_target = a_target
         self.a_basis = tuple(tuple(int(e) for e in m) for m in a_basis)
@@ -621,7 +630,8 @@ class ForcedKernelModel:
     def get_params(self) -> dict[str, Any]:
         """Constructor hyperparameters (JSON-able)."""
         return {
-            "forcing_scale": self.forcing_scale, "selection": self.selection,
+            "forcing_scale": self.forcing_scale, "linear_frequency": self.linear_frequency,
+            "selection": self.selection,
             "a_target": self.a_target, "a_basis": [list(m) for m in self.a_basis],
             "b_basis": [list(m) for m in self.b_basis], "n_pseudo": self.n_pseudo,
             "rho_min_fraction": self.rho_min_fraction, "observation": self.observation,
@@ -631,10 +641,17 @@ class ForcedKernelModel:
 
     def _check_params(self) -> None:
         fs = self.forcing_scale
-        if not (fs == "fit" or (isinstance(fs, (int, float)) and not isinstance(fs, bool)
-                                and math.isfinite(fs) and fs > 0)):
+        if not (fs in ("fit", "auto") or (isinstance(fs, (int, float))
+                                          and not isinstance(fs, bool)
+                                          and math.isfinite(fs) and fs > 0)):
             raise BifidInputError(
-                f"forcing_scale must be a positive number or 'fit', got {fs!r}."
+                f"forcing_scale must be a positive number, 'fit' or 'auto', got {fs!r}."
+            )
+        w0 = self.linear_frequency
+        if w0 is not None and not (isinstance(w0, (int, float)) and math.isfinite(w0)
+                                   and w0 > 0):
+            raise BifidInputError(
+                f"linear_frequency must be a positive number [rad/s] or None, got {w0!r}."
             )
         if self.selection not in ("ml", "loo"):
             raise BifidInputError(f"selection must be 'ml' or 'loo', got {self.selection!r}.")
@@ -740,15 +757,24 @@ class ForcedKernelModel:
 
         # ----------------------------------------------------------- b (eq. 6.15) and κ
         gp_b = self._gp(self.b_basis, (0.0, None))
-        if self.forcing_scale == "fit":
+        several = bool(np.ptp(om) > 1e-9 * np.mean(om))
+        mode = self.forcing_scale
+        if mode == "auto":
+            mode = "fit" if (several or self.linear_frequency is not None) else 1.0
+            if mode == 1.0:
+                notes.append("one forcing frequency only: the forcing scale κ cannot be "
+                             "identified and is set to 1 (Γ = F, the thesis's assumption); "
+                             "predictions at other frequencies depend on it — give "
+                             "forcing_scale or linear_frequency")
+        if mode == "fit":
             kappa, kappa_info = self._fit_kappa(gp_b, x, om, e, omega_c)
         else:
-            kappa, kappa_info = float(self.forcing_scale), {"method": "given"}
+            kappa, kappa_info = float(mode), {"method": "given"}
         p_b = om + kappa * e - omega_c
-        if self.forcing_scale == "fit":
-            gp_b.fit(x, p_b, theta=kappa_info.pop("theta"), y_scale=kappa_info.pop("y_scale"))
-        else:
-            gp_b.fit(x, p_b)
+        # b's hyperparameters are (re)selected at the final κ with the usual restarts
+        kappa_info.pop("theta", None)
+        kappa_info.pop("y_scale", None)
+        gp_b.fit(x, p_b)
         gamma = kappa * fo
 
         # ----------------------------------------------------------- a (eq. 6.19)
@@ -798,15 +824,30 @@ class ForcedKernelModel:
         # least-squares start: Ω_j + κ e_j ≈ c0 + c1 ρ² + c2 ρ⁴
         rho = x[:, 0]
         rs = rho / rho.max()
-        design = np.stack([-e, np.ones_like(rho), rs**2, rs**4], axis=1)
-        coef, *_ = np.linalg.lstsq(design, om, rcond=None)
+        w0 = self.linear_frequency
+        if w0 is None:
+            design = np.stack([-e, np.ones_like(rho), rs**2, rs**4], axis=1)
+            coef, *_ = np.linalg.lstsq(design, om, rcond=None)
+        else:
+            design = np.stack([-e, rs**2, rs**4], axis=1)
+            coef, *_ = np.linalg.lstsq(design, om - w0, rcond=None)
         kappa_ls = float(coef[0])
         if np.ptp(om) <= 1e-9 * np.mean(om):
-            raise BifidInputError(
-                "forcing_scale='fit' needs responses at several forcing frequencies (the scale "
-                "of Γ is identified by how b varies with Ω); all points share one frequency. "
-                "Give forcing_scale as a number."
-            )
+            if w0 is None:
+                raise BifidInputError(
+                    "forcing_scale='fit' needs responses at several forcing frequencies (the "
+                    "scale of Γ is identified by how b varies with Ω) or a known "
+                    "linear_frequency; all points share one frequency. Give forcing_scale "
+                    "as a number or linear_frequency."
+                )
+            if not (kappa_ls > 0 and math.isfinite(kappa_ls)):
+                raise ConvergenceError(
+                    f"the forcing scale from linear_frequency={w0:g} came out non-positive "
+                    f"({kappa_ls:.3g}): ω₀ is on the wrong side of the forcing frequency for "
+                    "these phases."
+                )
+            return kappa_ls, {"method": "linear frequency (least squares)",
+                              "kappa_least_squares": kappa_ls}
         if not (kappa_ls > 0 and math.isfinite(kappa_ls)):
             kappa_ls = float(np.std(om) / max(np.std(e), 1e-300))
         k0 = kappa_ls
@@ -1082,12 +1123,13 @@ class ForcedKernelModel:
                 index=int(idx), interval=(float(params[idx]), float(params[idx + 1])),
                 solution=np.asarray(yf[:2]), precision=float(prec), status="converged",
                 data={"amplitude": float(yf[0]), "phase": float(_wrap_lag(yf[1])),
-                      "omega": float(yf[2])},
+                      "omega": float(yf[2]), "forcing": float(np.asarray(forcing)[0])},
             ))
         return Branch(
             kind="forced", system=MODEL_TYPE, param=param, params=np.asarray(params),
             solutions=np.stack([rho, psi], axis=1), stable=stable, special_points=specials,
-            data={"amplitude": rho[:, None], "phase": _wrap_lag(psi), "omega": om,
+            data={"amplitude": rho[:, None], "observed_amplitude": rho,
+                  "phase": _wrap_lag(psi), "omega": om,
                   "forcing": np.asarray(forcing, dtype=float), "eigenvalues": eig},
             p=np.array([self.forcing_scale_]), status=status, message=message, options=opts,
             meta={"observed": "y", "forcing_scale": self.forcing_scale_, "states": ("y",)},
@@ -1210,8 +1252,9 @@ class ForcedKernelModel:
         br = Branch(
             kind="forced", system=MODEL_TYPE, param="F", params=forcing,
             solutions=np.stack([rho, psi], axis=1), stable=stable, special_points=specials,
-            data={"amplitude": rho[:, None], "phase": _wrap_lag(psi),
-                  "omega": np.full(rho.shape, om), "forcing": forcing, "eigenvalues": eig},
+            data={"amplitude": rho[:, None], "observed_amplitude": rho,
+                  "phase": _wrap_lag(psi), "omega": np.full(rho.shape, om), "forcing": forcing,
+                  "eigenvalues": eig},
             p=np.array([k]), status=status, message=message, options=opts,
             meta={"observed": "y", "forcing_scale": k, "states": ("y",)},
         )
@@ -1248,7 +1291,8 @@ class ForcedKernelModel:
                 kind="fold", param=g / k, index=int(i),
                 interval=(float(forcing[i]), float(forcing[i + 1])),
                 solution=np.array([r, psi]), precision=float(abs(hi - lo)), status="converged",
-                data={"amplitude": r, "phase": float(_wrap_lag(psi)), "omega": om},
+                data={"amplitude": r, "phase": float(_wrap_lag(psi)), "omega": om,
+                      "forcing": g / k},
             ))
         return out
 
@@ -1297,7 +1341,8 @@ class ForcedKernelModel:
             kind="backbone", system=MODEL_TYPE, param="amplitude", params=rho,
             solutions=np.stack([rho, np.full(rho.shape, np.pi / 2)], axis=1),
             stable=np.ones(rho.shape, dtype=bool), special_points=[],
-            data={"omega": om, "amplitude": rho[:, None]}, p=np.array([self.forcing_scale_]),
+            data={"omega": om, "amplitude": rho[:, None], "observed_amplitude": rho},
+            p=np.array([self.forcing_scale_]),
             status=status, message=message, options=ContinuationOptions(),
             meta={"observed": "y", "states": ("y",)},
         )
@@ -1415,17 +1460,13 @@ class ForcedKernelModel:
                                   if k not in ("theta", "y_scale")},
             "a": self.gp_a_.hyperparameters_, "b": self.gp_b_.hyperparameters_,
             "omega_offset": self.omega_c_,
-            "linear_frequency": None, "linear_damping": None,
+            "linear_frequency": None,
         }
-        # linear modal properties: b(0, Ω) at the backbone and −∂a/∂ρ(0, Ω)
+        # small-amplitude end of the backbone (eq. 6.21): the linear natural frequency
         try:
             bb = self.backbone((0.0, 0.02 * self.rho_range_[1]), n_points=3)
-            w0 = float(bb.data["omega"][0])
-            eps = 1e-6 * self.rho_range_[1]
-            a_eps = float(self.reduced_dynamics(eps, w0)[0])
-            out["linear_frequency"] = w0
-            out["linear_damping"] = -a_eps / eps
-        except (ConvergenceError, FloatingPointError):
+            out["linear_frequency"] = float(bb.data["omega"][0])
+        except ConvergenceError:
             pass
         if self.gp_phi_ is not None:
             out["phi"] = self.gp_phi_.hyperparameters_
@@ -1443,9 +1484,9 @@ def band_coverage(
     """Fraction of a model FRC's band points whose true curve lies inside the band.
 
     The true curve (Ω, A, lag) is interpolated (cubic splines in the lag) at the model
-    branch's phases (ψ is a regular parameter along both); its offset from the mean curve along the band's normal
-    is compared with the band's offsets. Returns ``coverage``, ``n`` (points compared) and
-    the median band width (scaled units).
+    branch's phases (ψ is a regular parameter along both); its offset from the mean curve
+    along the band's normal is compared with the band's offsets. Returns ``coverage``,
+    ``n`` (points compared) and the median band width (scaled units).
     """
     if "band_offset" not in branch.data:
         raise BifidInputError("the branch has no band: compute it with n_samples > 0.")

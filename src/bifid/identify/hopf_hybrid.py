@@ -107,6 +107,18 @@ class _Timer:
         return out
 
 
+def _blas_single_thread():
+    """One BLAS thread while fitting: the linear algebra here is small, and multithreaded
+    BLAS on a loaded 2-core machine is up to 20× slower than one thread (oversubscription)."""
+    import contextlib
+
+    try:
+        from threadpoolctl import threadpool_limits
+    except ImportError:  # optional
+        return contextlib.nullcontext()
+    return threadpool_limits(limits=1, user_api="blas")
+
+
 def _progress(enabled: bool):
     import contextlib
 
@@ -142,7 +154,10 @@ class HopfHybridModel:
     n_linear : int
         L-BFGS iterations of stage 1 (linear part).
     n_adam, n_lbfgs : int
-        Adam then L-BFGS iterations of stage 2 (network, :math:`\mu_0`, :math:`a_2`).
+        Adam then L-BFGS iterations of stage 2 (network, :math:`\mu_0`, :math:`a_2`). The
+        default skips Adam: on the flutter and Van der Pol benchmarks L-BFGS alone reaches
+        the same loss 3–4× faster from the zero-initialised network output, and both stages
+        then share one compiled loop.
     learning_rate : float
         Peak Adam learning rate (cosine decay) of stage 2.
     regularization : "cv" or float
@@ -192,8 +207,8 @@ class HopfHybridModel:
         width: int = 16,
         depth: int = 2,
         n_linear: int = 100,
-        n_adam: int = 400,
-        n_lbfgs: int = 300,
+        n_adam: int = 0,
+        n_lbfgs: int = 400,
         learning_rate: float = 3e-3,
         regularization: str | float = "cv",
         regularization_grid: Sequence[float] = (0.0, 1e-7, 1e-6, 1e-5, 1e-4),
@@ -327,6 +342,10 @@ class HopfHybridModel:
             If no ensemble member produces finite parameters.
         """
         self._validate_hyper()
+        with _blas_single_thread():
+            return self._fit(data, signal_names)
+
+    def _fit(self, data: Any, signal_names: Sequence[str] | None) -> HopfHybridModel:
         t_start = time.perf_counter()
         d = as_lco_data(data, signal_names)
         self._setup(d)

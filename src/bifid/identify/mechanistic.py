@@ -220,6 +220,7 @@ class LMResult:
     converged: bool
     message: str
     history: list[dict[str, Any]] = field(default_factory=list)
+    p: np.ndarray | None = None
 
 
 def levenberg_marquardt(
@@ -394,6 +395,13 @@ def fit_near_hopf(
         the (log-parameter) Jacobian, the identifiable and unidentifiable directions, and
         for ``(ka2, ka3)`` the structure coefficients of eq. 4.10.
 
+    The leading-order amplitudes depend on the parameters only through
+    :math:`\alpha_2`, and are linear in :math:`\alpha_2^{-1/2}`: the least-squares
+    :math:`\alpha_2^*` is explicit. The parameters are moved onto the manifold
+    :math:`\alpha_2(\theta) = \alpha_2^*` by minimum-norm Gauss–Newton steps from the start
+    (which may even be supercritical), then polished by :func:`levenberg_marquardt` on the
+    amplitude residuals with the subcritical constraint :math:`\alpha_2 > 0` as a barrier.
+
     Raises
     ------
     BifidInputError
@@ -460,11 +468,28 @@ def fit_near_hopf(
         dA = -0.5 * k * np.sqrt(s / a2) / a2  # dA/d alpha2
         return dA[:, None] * g[None, :]
 
+    # Closed form: A_i = k sqrt(s_i) u with u = alpha2^(-1/2) is linear in u, so the
+    # least-squares alpha2 is explicit; move the parameters onto alpha2(theta) = alpha2*
+    # by minimum-norm Gauss-Newton steps (this also starts from a supercritical model).
+    wts = k * np.sqrt(s)
+    u = float(wts @ a) / float(wts @ wts)
+    if not u > 0:
+        raise BifidInputError("the measured amplitudes are all zero; nothing to fit.")
+    a2_star = 1.0 / u**2
     phi0 = _to_phi(theta0, logm)
-    if fun(phi0) is None:
-        raise BifidInputError(
-            f"The starting values {dict(zip(free, theta0, strict=True))} make the Hopf point "
-            "supercritical; start from subcritical values (alpha2 > 0)."
+    for _ in range(100):
+        pp = p_of(phi0)
+        d = cc(pp) - a2_star
+        if abs(d) <= 1e-13 * a2_star:
+            break
+        g = cc.gradient(pp, free) * np.where(logm, pp[idx], 1.0)
+        step = -g * d / float(g @ g)
+        # keep log-parameter steps moderate (alpha2 is far from linear in log space)
+        phi0 = phi0 + step / max(1.0, float(np.max(np.abs(step))) / 0.5)
+    else:
+        raise ConvergenceError(
+            f"Could not move {', '.join(free)} to alpha2 = {a2_star:.6g} (the value the "
+            "near-Hopf amplitudes require)."
         )
     lm = levenberg_marquardt(fun, jac, phi0, max_iter=max_iter)
     p_fit = p_of(lm.x)
@@ -598,7 +623,8 @@ class OrbitSet:
         self._out = [self.system.state_index(o) for o in self.outputs]
 
     # ---------------------------------------------------------------- initial match
-    def match(self, branch: Any, data: LCOData, p: np.ndarray) -> None:
+    def match(self, branch: Any, data: LCOData, p: np.ndarray, *,
+              skip_missing: bool = False) -> np.ndarray:
         """Initial orbits for each measurement from a continued branch (``hopf_orbits``).
 
         On a subcritical branch (unstable cycles born at the Hopf point, turning at a
@@ -613,10 +639,17 @@ class OrbitSet:
         measured parameter; the side of the cycle fold (sign of ``d lambda / d A``) found
         there is then kept through every later update.
 
+        Returns
+        -------
+        ndarray of int
+            Indices of the measurements that were matched (all of them unless
+            ``skip_missing``); the orbits are stored in that order.
+
         Raises
         ------
         ConvergenceError
-            If a measurement has no orbit of the right kind at its parameter.
+            If a measurement has no orbit of the right kind at its parameter (unless
+            ``skip_missing``), or none has.
         """
         M, n = self.n_mesh, self.system.n_states
         params = np.asarray(branch.params)
@@ -626,7 +659,7 @@ class OrbitSet:
         folds_i = sorted(sp.index for sp in branch.special_points if sp.kind == "cycle_fold")
         hopf_start = branch.meta.get("start_kind") == "hopf"
         fold_i = folds_i[0] if (folds_i and hopf_start and not stab[1]) else None
-        ys = []
+        ys, matched = [], []
         for j in range(len(data)):
             lam = data.param[j]
             label = int(data.stable[j])
@@ -647,6 +680,8 @@ class OrbitSet:
             else:
                 target = data.amplitude[j, 0]
                 cands.sort(key=lambda c: abs(c[2] - target))
+            if not cands and skip_missing:
+                continue
             if not cands:
                 kind = {0: "unstable", 1: "stable"}.get(label, "any")
                 folds = [f"{sp.param:.6g}" for sp in branch.special_points
@@ -660,6 +695,12 @@ class OrbitSet:
             i, s, _ = cands[0]
             guess = (1 - s) * sols[i] + s * sols[i + 1]
             ys.append(np.concatenate([guess[: M * n + 1], [lam]]))
+            matched.append(j)
+        if not ys:
+            raise ConvergenceError(
+                f"The model has none of the measured periodic orbits (its branch spans "
+                f"{params.min():.6g}..{params.max():.6g})."
+            )
         self.ys = np.array(ys)
         self.sides = None
         new = self.solve(p)
@@ -670,6 +711,7 @@ class OrbitSet:
             )
         self.ys = new
         self.sides = np.array([self._side(y, p) for y in new])
+        return np.asarray(matched, dtype=int)
 
     # ------------------------------------------------------------------- solving
     def _args(self, p: np.ndarray, y: np.ndarray) -> dict[str, Any]:
@@ -806,7 +848,7 @@ def whole_diagram_update(
     max_iter: int = 40,
     xtol: float = 1e-10,
     hopf_guess: float | None = None,
-    branch_range: tuple[float, float] | None = None,
+    schedule: str = "arclength",
 ) -> WholeDiagramResult:
     """Update parameters so that the model's LCO branch matches all measured LCOs (§4.3.3).
 
@@ -832,6 +874,15 @@ def whole_diagram_update(
         column re-solves every orbit) — the baseline the thesis used.
     fd_step : float
         Step of the finite differences in log-parameter units.
+    schedule : {"arclength", "all"}
+        "all": one Levenberg–Marquardt run on every LCO. "arclength" (default): a homotopy
+        in the data — fit first the unstable LCOs nearest the Hopf point (their amplitudes
+        depend on the parameters almost only through the normal-form coefficient
+        ``alpha2``, so the minimum-norm steps fix that combination first), then all
+        unstable LCOs, then everything; the branch is recomputed and the orbits
+        re-matched between steps. The cost of eq. 4.15 over the whole diagram has
+        spurious local minima where the cycle fold jumps between the two folds of an
+        S-shaped branch; the schedule keeps the iterates in the basin of the data.
 
     Returns
     -------
@@ -842,22 +893,137 @@ def whole_diagram_update(
     outputs = tuple(outputs or data.outputs)
     if gradient not in ("implicit", "fd"):
         raise BifidInputError(f"gradient must be 'implicit' or 'fd', got {gradient!r}.")
+    if schedule not in ("arclength", "all"):
+        raise BifidInputError(f"schedule must be 'arclength' or 'all', got {schedule!r}.")
     for o in outputs:
         data.column(o)
     free = tuple(free)
     if not free:
         raise BifidInputError("free must name at least one parameter.")
-    idx = [sys_.index(nm) for nm in free]
-    p = np.asarray(p, dtype=float)
+    p = np.asarray(p, dtype=float).copy()
     t_start = time.perf_counter()
-    if branch is None:
-        branch = model_branch(sys_, p, param, n_mesh=n_mesh, guess=hopf_guess,
-                              param_range=branch_range or _default_range(data))
-    orbits = OrbitSet(sys_, param, n_mesh, outputs)
-    orbits.match(branch, data, p)
-    meas = np.column_stack([data.column(o) for o in outputs])
-    scale = np.max(meas, axis=0)
+    meas_all = np.column_stack([data.column(o) for o in outputs])
+    scale = np.max(meas_all, axis=0)
     scale = np.where(scale > 0, scale, 1.0)
+    groups = _schedule(data, hopf_guess) if schedule == "arclength" else [np.arange(len(data))]
+    history: list[dict[str, Any]] = []
+    rms_start = None
+    lm = orbits = None
+    nf_init = None
+    if schedule == "arclength":
+        p, nf_init = _normal_form_start(sys_, p, free, data, param, outputs[0], hopf_guess,
+                                        n_mesh)
+        if nf_init is not None:
+            branch = None
+    for g, members in enumerate(groups):
+        sub = data.select(np.isin(np.arange(len(data)), members))
+        for attempt in range(4):
+            if branch is None or g > 0 or attempt > 0:
+                branch = model_branch(sys_, p, param, n_mesh=n_mesh, guess=hopf_guess,
+                                      param_range=_default_range(data))
+            hopf_guess = float(branch.meta.get("start_param",
+                                               hopf_guess or p[sys_.index(param)]))
+            orbits = OrbitSet(sys_, param, n_mesh, outputs)
+            matched = orbits.match(branch, sub, p, skip_missing=schedule == "arclength")
+            sub_m = sub.select(np.isin(np.arange(len(sub)), matched))
+            if rms_start is None and len(sub_m) == len(data):
+                rms_start = float(np.sqrt(np.mean((orbits.amplitudes() - meas_all) ** 2)))
+            lm = _fit_orbits(orbits, sys_, p, free, sub_m, outputs, scale, gradient, fd_step,
+                             max_iter, xtol)
+            for h in lm.history:
+                history.append({**h, "group": g, "n_lcos": len(sub_m)})
+            p = lm.p
+            if len(matched) == len(sub):
+                break
+        else:
+            raise ConvergenceError(
+                f"After {attempt + 1} attempts the model still lacks {len(sub) - len(matched)} "
+                f"of the measured LCOs at {param} = "
+                f"{np.setdiff1d(sub.param, sub_m.param).tolist()}; the diagram cannot be "
+                "matched from this start."
+            )
+    assert lm is not None and orbits is not None
+    if rms_start is None:
+        rms_start = float("nan")
+    lm.history = history
+    if nf_init is not None:
+        lm.history.insert(0, {"iter": 0, "group": -1, "normal_form_start": nf_init})
+    amps = orbits.amplitudes()
+    res = amps - meas_all
+    sv = np.linalg.svd(lm.jac, compute_uv=False)
+    if not lm.converged:
+        warnings.warn(f"whole-diagram update did not converge: {lm.message}", ConvergenceWarning,
+                      stacklevel=2)
+    idx = [sys_.index(nm) for nm in free]
+    return WholeDiagramResult(
+        params={nm: float(p[i]) for nm, i in zip(free, idx, strict=True)}, p=p,
+        amplitudes=amps, residuals=res, rms=float(np.sqrt(np.mean(res**2))), rms_start=rms_start,
+        lm=lm, gradient=gradient, time_s=time.perf_counter() - t_start, orbits=orbits,
+        singular_values=sv,
+    )
+
+
+def _normal_form_start(sys_: System, p: np.ndarray, free: tuple[str, ...], data: LCOData,
+                       param: str, output: str, hopf_guess: float | None, n_mesh: int
+                       ) -> tuple[np.ndarray, dict[str, Any] | None]:
+    """Start of the data homotopy when the model cannot hold the measured unstable LCOs.
+
+    If the model is supercritical, or its unstable branch does not reach the unstable LCO
+    nearest the Hopf point, the free parameters (if they leave the linearisation fixed)
+    are first moved by the normal-form fit (:func:`fit_near_hopf`) so that ``alpha2``
+    matches the unstable LCOs. Returns the (possibly) updated parameters and a summary
+    (None when nothing was done).
+    """
+    unstable = data.stable == 0
+    if not np.any(unstable):
+        return p, None
+    try:
+        nf = hopf_normal_form(sys_, param, p=jnp.asarray(p), guess=hopf_guess)
+    except ConvergenceError:
+        return p, None
+    if not nonlinear_only(sys_, nf, free):
+        return p, None
+    sel = unstable & (data.param < nf.param_value) if nf.alpha1 > 0 else unstable
+    if not np.any(sel):
+        return p, None
+    nearest = float(data.param[sel][np.argmin(np.abs(data.param[sel] - nf.param_value))])
+    if nf.alpha2 > 0:
+        # subcritical: does the unstable branch reach the nearest unstable LCO?
+        try:
+            br = model_branch(sys_, p, param, n_mesh=n_mesh, guess=nf.param_value,
+                              param_range=(min(nearest, nf.param_value) - 1e-9,
+                                           max(nearest, nf.param_value) + 1e-9),
+                              max_steps=200)
+        except ConvergenceError:
+            br = None
+        if br is not None and not br.special("cycle_fold"):
+            return p, None
+    res = fit_near_hopf(sys_, p, free, data.select(sel), output=output, param=param, nf=nf)
+    return res.p, {"params": res.params, "alpha2": res.alpha2, "reason":
+                   "supercritical start" if nf.alpha2 <= 0 else "unstable branch too short"}
+
+
+def _schedule(data: LCOData, hopf: float | None) -> list[np.ndarray]:
+    """Groups of LCO indices for the data homotopy (arclength order from the Hopf point)."""
+    unstable = np.flatnonzero(data.stable == 0)
+    if hopf is None:
+        hopf = float(np.max(data.param))
+    order_u = unstable[np.argsort(np.abs(data.param[unstable] - hopf))]
+    n_u = order_u.size
+    sizes = sorted({max(1, math.ceil(n_u / 2)), n_u}) if n_u else []
+    groups = [order_u[:k] for k in sizes if k > 0]
+    everything = np.arange(len(data))
+    if not groups or groups[-1].size < len(data):
+        groups.append(everything)
+    return groups
+
+
+def _fit_orbits(orbits: OrbitSet, sys_: System, p: np.ndarray, free: tuple[str, ...],
+                data: LCOData, outputs: tuple[str, ...], scale: np.ndarray, gradient: str,
+                fd_step: float, max_iter: int, xtol: float) -> LMResult:
+    """Levenberg–Marquardt on the matched orbits of ``data`` (one step of the schedule)."""
+    idx = [sys_.index(nm) for nm in free]
+    meas = np.column_stack([data.column(o) for o in outputs])
     theta0 = p[idx]
     logm = _log_mask(theta0)
 
@@ -909,8 +1075,6 @@ def whole_diagram_update(
 
     phi0 = _to_phi(theta0, logm)
     r0 = resid(orbits.ys)
-    rms_start = float(np.sqrt(np.mean((r0.reshape(meas.shape) * scale) ** 2)))
-    jac = jac_implicit if gradient == "implicit" else jac_fd
 
     def fun0(phi):
         if np.array_equal(phi, phi0):
@@ -918,20 +1082,10 @@ def whole_diagram_update(
             return r0
         return fun(phi)
 
-    lm = levenberg_marquardt(fun0, jac, phi0, max_iter=max_iter, xtol=xtol, on_accept=on_accept)
-    p_fit = p_of(lm.x)
-    amps = orbits.amplitudes()
-    res = amps - meas
-    sv = np.linalg.svd(lm.jac, compute_uv=False)
-    if not lm.converged:
-        warnings.warn(f"whole-diagram update did not converge: {lm.message}", ConvergenceWarning,
-                      stacklevel=2)
-    return WholeDiagramResult(
-        params={nm: float(p_fit[i]) for nm, i in zip(free, idx, strict=True)}, p=p_fit,
-        amplitudes=amps, residuals=res, rms=float(np.sqrt(np.mean(res**2))), rms_start=rms_start,
-        lm=lm, gradient=gradient, time_s=time.perf_counter() - t_start, orbits=orbits,
-        singular_values=sv,
-    )
+    lm = levenberg_marquardt(fun0, jac_implicit if gradient == "implicit" else jac_fd, phi0,
+                             max_iter=max_iter, xtol=xtol, on_accept=on_accept)
+    lm.p = p_of(lm.x)
+    return lm
 
 
 def _default_range(data: LCOData) -> tuple[float, float]:

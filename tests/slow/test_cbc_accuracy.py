@@ -1,0 +1,227 @@
+"""Long CBC accuracy runs (issue 3 §5): flutter PP-CBC, duffing and shaw_pierre S-curves,
+duffing FRC, controlled Floquet multipliers. Run with ``pytest --runslow tests/slow``.
+
+References are independent of CBC:
+- LCOs: the uncontrolled orbit Newton-corrected (Fourier collocation) at the measured U
+  from the rig's true states, its stability from its Floquet multipliers;
+- forced responses and folds: numerical continuation (``bifid.continuation.scurve/frc``).
+"""
+
+from __future__ import annotations
+
+import warnings
+
+import numpy as np
+import pytest
+
+from bifid.cbc import FourierTarget, PDController, VirtualRig
+from bifid.cbc._defaults import defaults_for
+from bifid.cbc._forced import ForcedCBCOptions, folds_of, frc_cbc, scurve_cbc
+from bifid.cbc._fourier import fourier_project
+from bifid.cbc._ppcbc import PPCBCOptions, ppcbc_continuation, ppcbc_sweep
+from bifid.cbc._stability import controlled_floquet, orbit_polar_target
+from bifid.cbc._truth import (
+    centred_amplitudes,
+    correct_forced,
+    correct_orbit,
+    forced_orbit_from_samples,
+    orbit_from_samples,
+)
+from bifid.continuation import floquet_multipliers, max_abs
+from bifid.systems import get_system
+
+pytestmark = pytest.mark.slow
+
+U_VALUES = (15.0, 15.5, 16.0, 16.5, 17.0, 17.5)
+GRID = np.linspace(0.004, 0.036, 17)
+
+
+def _truth(s, pt):
+    m = pt.measurement
+    V = orbit_from_samples(m.extra["states"], pt.frequency, m.sample_rate)
+    Vc, T = correct_orbit(s, "U", pt.param, V, 2 * np.pi / pt.frequency)
+    p = np.asarray(s.param_vector(U=pt.param))
+    _, stable, _ = floquet_multipliers(s.rhs, Vc[None], np.array([T]), p[None],
+                                          autonomous=True)
+    return Vc, T, centred_amplitudes(Vc), bool(stable[0])
+
+
+def _sweep(noise):
+    s = get_system("flutter")
+    rig = VirtualRig(s, {"U": 15.0}, noise=noise, seed=5, record_states=True)
+    opts = PPCBCOptions(measure_periods=8.0 if noise else 4.0, settle_periods=6.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        pts, fails = ppcbc_sweep(rig, "U", U_VALUES, GRID, opts, omega_guess=15.0)
+    return s, pts, fails, opts
+
+
+@pytest.fixture(scope="module")
+def clean():
+    return _sweep(None)
+
+
+@pytest.fixture(scope="module")
+def noisy():
+    # 1 % of the smallest heave amplitude in the diagram (unstable LCO at 17.5 m/s)
+    return _sweep({"h": 0.01 * 0.00743, "alpha": 0.01 * 0.02157})
+
+
+def _check_diagram(sweep, tol):
+    s, pts, fails, _opts = sweep
+    assert not fails
+    found = sorted((p.param, p.stable) for p in pts)
+    expected = sorted([(u, False) for u in U_VALUES] + [(u, True) for u in U_VALUES])
+    assert found == expected  # both LCOs at every U, labels right (stable = larger one)
+    for pt in pts:
+        _Vc, _, a, stable = _truth(s, pt)
+        assert pt.stable is stable
+        assert pt.amplitude["h"] == pytest.approx(a[0], rel=tol)
+        assert pt.amplitude["alpha"] == pytest.approx(a[2], rel=tol)
+        # control RMS below 1 % of the response RMS (same units: the feedback on x1, x2)
+        assert pt.invasiveness < 0.01
+        assert pt.tracking_error < 0.01
+    return pts
+
+
+def test_flutter_ppcbc_noise_free(clean):
+    """Check 12 LCOs within 1 % of the uncontrolled orbits, labels, invasiveness."""
+    _check_diagram(clean, 0.01)
+
+
+def test_flutter_ppcbc_with_noise(noisy):
+    """Check the same with measurement noise of 1 % of the heave amplitude, within 3 %."""
+    _check_diagram(noisy, 0.03)
+
+
+def test_flutter_controlled_floquet(clean):
+    """Check the gains stabilise every measured LCO: controlled multipliers inside the
+    unit circle except the trivial one (Fig. 3.9), while unstable LCOs have one outside."""
+    s, pts, _, opts = clean
+    for pt in pts:
+        Vc, T, _, stable = _truth(s, pt)
+        p = np.asarray(s.param_vector(U=pt.param))
+        om = 2 * np.pi / T
+        tgt = orbit_polar_target(Vc, s, "h", "h_dot", 10, scale=(1.0, -om), p=p)
+        mu, fmax = controlled_floquet(s, opts.controller, tgt, Vc, T, p)
+        assert np.min(np.abs(mu - 1.0)) < 1e-5
+        assert fmax < 0.7
+        _, f_open = controlled_floquet(s, PDController(0, 0, "h", "h_dot"), tgt, Vc, T, p)
+        assert (f_open > 1.0) is (not stable)
+
+
+def test_flutter_polar_continuation():
+    """Check Example 3.3: Newton-Broyden + arclength in U along the unstable branch."""
+    s = get_system("flutter")
+    rig = VirtualRig(s, {"U": 17.0}, record_states=True)
+    opts = PPCBCOptions(settle_periods=6.0, measure_periods=4.0, stability=False)
+    from bifid.cbc._ppcbc import ppcbc_scan
+
+    start, _ = ppcbc_scan(rig, "U", 17.0, np.linspace(0.006, 0.014, 5), opts, omega_guess=15.0)
+    assert len(start) == 1
+    pts, fails = ppcbc_continuation(rig, "U", start[0], opts, ds=0.5, n_points=5, direction=-1)
+    assert not fails and len(pts) == 5
+    for pt in pts:
+        _, _, a, stable = _truth(s, pt)
+        assert pt.amplitude["h"] == pytest.approx(a[0], rel=0.01)
+        assert not stable
+    assert pts[-1].param < 16.5
+
+
+def _branch_amplitude_error(pts, br, key):
+    """max over points of |F_cont(A) - F|/F at the measured amplitude (S-curve) or the
+    distance to the continuation curve in the normalised (key, amplitude) plane (FRC)."""
+    x = np.asarray(br.data[key])
+    a = np.asarray(br.data["observed_amplitude"])
+    xs, as_ = np.ptp(x), np.ptp(a)
+    worst = 0.0
+    for p in pts:
+        d = np.min(np.hypot((x - getattr(p, key)) / xs, (a - p.amplitude) / as_))
+        worst = max(worst, d)
+    return worst
+
+
+def _forced_against_continuation(system, omega, frange, opts, folds_ref_n=2):
+    from bifid.continuation import ContinuationOptions, scurve
+
+    s = get_system(system)
+    rig = VirtualRig(s, sample_rate=100.0, record_states=True)
+    pts, fails = scurve_cbc(rig, omega, frange, opts)
+    assert not fails
+    br = scurve(s, omega, (frange[0] * 0.5, frange[1] * 1.2), n_mesh=32,
+                options=ContinuationOptions(ds=0.01, ds_min=1e-9, ds_max=0.2, max_steps=3000))
+    ref = sorted(sp.param for sp in br.special("fold"))
+    got = sorted(f["forcing"] for f in folds_of(pts))
+    assert len(ref) == folds_ref_n and len(got) == folds_ref_n
+    np.testing.assert_allclose(got, ref, rtol=0.02)
+    # amplitudes within 1 %: each point against the uncontrolled response at its forcing
+    obs = s.state_index(opts.signal)
+    for p in pts:
+        m = p.measurement
+        V = forced_orbit_from_samples(m.extra["states"], m.phase, p.force_phase, n_mesh=32)
+        Vc = correct_forced(s, p.omega, p.forcing, V, n_mesh=32)
+        a_true = float(max_abs(Vc[:, obs]))
+        assert p.amplitude == pytest.approx(a_true, rel=0.01)
+    return pts, br
+
+
+def test_duffing_scurve_full():
+    """Check the duffing S-curve at Ω = 1.05 (folds near F = 0.011, 0.022), stability labels."""
+    d = defaults_for("duffing")
+    opts = ForcedCBCOptions(signal="q", kp=d.kp, kd=d.kd, n_harmonics=5, settle_periods=8,
+                            measure_periods=3, stability=True)
+    pts, _br = _forced_against_continuation("duffing", 1.05, (0.002, 0.03), opts)
+    folds = folds_of(pts)
+    lo, hi = folds[0]["amplitude"], folds[1]["amplitude"]
+    for p in pts:
+        if p.stable is None:
+            continue
+        inside = lo < p.amplitude < hi
+        near = min(abs(p.amplitude - lo), abs(p.amplitude - hi)) < 0.02
+        if not near:
+            assert p.stable is (not inside)
+
+
+def test_shaw_pierre_scurve_two_folds():
+    """Check the shaw_pierre S-curve at Ω = 1.005, which has two folds (F ≈ 0.0128, 0.0090)."""
+    d = defaults_for("shaw_pierre")
+    opts = ForcedCBCOptions(signal="x1", kp=d.kp, kd=d.kd, n_harmonics=5, settle_periods=10,
+                            measure_periods=3)
+    _forced_against_continuation("shaw_pierre", 1.005, (0.001, 0.02), opts)
+
+
+def test_duffing_frc_bistable():
+    """Check the FRC protocol (Newton-Broyden + arclength in Ω) through the bistable region."""
+    from bifid.continuation import frc
+
+    s = get_system("duffing")
+    rig = VirtualRig(s, sample_rate=50.0)
+    opts = ForcedCBCOptions(signal="q", kp=0.5, kd=0.5, n_harmonics=3, settle_periods=6,
+                            measure_periods=2, ds=0.1, ds_max=0.2)
+    pts, fails = frc_cbc(rig, 0.01, (0.9, 1.3), opts)
+    assert not fails
+    br = frc(s, 0.01, (0.85, 1.35), n_mesh=32)
+    ref = sorted(sp.param for sp in br.special("fold"))
+    got = sorted(f["omega"] for f in folds_of(pts, "omega"))
+    np.testing.assert_allclose(got, ref, rtol=0.005)
+    assert _branch_amplitude_error(pts, br, "omega") < 0.01
+
+
+def test_duffing_gains_stabilise_the_middle_branch():
+    """Check kp = kd = 0.5 make the saddle of the duffing S-curve stable (all |μ| < 1)."""
+    s = get_system("duffing")
+    Om, F = 1.05, 0.0145
+    p = np.asarray(s.param_vector(F=F, Omega=Om))
+    tau = 2 * np.pi * np.arange(32) / 32
+    V0 = np.stack([0.45 * np.cos(tau - 2.45), -0.45 * Om * np.sin(tau - 2.45)], axis=1)
+    V = correct_forced(s, Om, F, V0, p=p, n_mesh=32)
+    c = fourier_project(V[:, 0], tau, 5)
+    c[0] *= 2.0
+    target = FourierTarget(c)
+    _, f_open = controlled_floquet(s, PDController(0.0, 0.0, "q", "q_dot"), target, V,
+                                   2 * np.pi / Om, p, forcing=(F, Om, 0.0))
+    assert f_open > 1.0
+    d = defaults_for("duffing")
+    _, f_ctrl = controlled_floquet(s, PDController(d.kp, d.kd, "q", "q_dot"), target, V,
+                                   2 * np.pi / Om, p, forcing=(F, Om, 0.0))
+    assert f_ctrl < 0.5

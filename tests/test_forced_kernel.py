@@ -1,0 +1,308 @@
+"""Kernel models of forced systems (thesis ch. 6) against analytic answers.
+
+The data come from a reduced model whose FRCs, folds, backbone, S-curves and stability
+are known in closed form: ``a(ρ) = −cρ``, ``b(ρ) = ω₀ + kρ²`` with ``Γ = κF`` (first-order
+averaging of a hardening Duffing oscillator). On a fixed point of eq. 6.10 at phase ψ:
+``ρ = Γ sin ψ / c`` and ``Ω = b(ρ) + Γ cos ψ / ρ``, so every quantity is explicit in ψ.
+The GP machinery is checked against tinygp and against brute-force leave-one-out.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from pathlib import Path
+
+import jax
+import jax.numpy as jnp
+import numpy as np
+import pytest
+
+from bifid.data import ForcedRecord, forced_dataset, save_dataset
+from bifid.errors import BifidInputError, NotFittedError
+from bifid.identify.forced_kernel import ForcedKernelModel, band_coverage
+from bifid.identify.kernels import GPRegressor, neg_log_marginal_likelihood, sample_eval
+
+C, K, W0, KAPPA = 0.0015, 0.0005, 1.0, 0.5
+TRAIN_F = (0.007, 0.01)
+
+
+def curve(forcing: float, psi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact FRC of the reduced model at phase ψ (thesis convention): (Ω, ρ)."""
+    g = KAPPA * forcing
+    rho = g * np.sin(psi) / C
+    return W0 + K * rho**2 + g * np.cos(psi) / rho, rho
+
+
+def exact_folds(forcing: float) -> np.ndarray:
+    psi = np.linspace(1e-3, np.pi - 1e-3, 400_001)
+    om, _ = curve(forcing, psi)
+    d = np.diff(om)
+    idx = np.nonzero(np.sign(d[:-1]) != np.sign(d[1:]))[0]
+    return np.sort(om[idx + 1])
+
+
+def records(forcing: float, n: int = 16, curve_id: int = 0) -> list[ForcedRecord]:
+    psi = np.linspace(0.12, np.pi - 0.12, n)
+    om, rho = curve(forcing, psi)
+    out = []
+    for o, r, p in zip(om, rho, psi, strict=True):
+        fs = 64 * o / (2 * np.pi)  # 64 samples per period, 2 periods
+        t = np.arange(128) / fs
+        y = -r * np.cos(o * t + p)  # y = −Re z: its first harmonic lags the force by π − ψ
+        out.append(ForcedRecord(omega=o, forcing=forcing, signals=y[:, None], sample_rate=fs,
+                                force=forcing * np.cos(o * t), amplitude=r, curve=curve_id))
+    return out
+
+
+@pytest.fixture(scope="module")
+def dataset():
+    recs = records(TRAIN_F[0]) + records(TRAIN_F[1], curve_id=1)
+    return forced_dataset(recs, ["y"], observed="y", system="analytic", source="test")
+
+
+@pytest.fixture(scope="module")
+def model(dataset) -> ForcedKernelModel:
+    return ForcedKernelModel(forcing_scale="fit", n_restarts=0).fit(dataset)
+
+
+# ------------------------------------------------------------------------------ GP core
+
+
+def test_gp_likelihood_matches_tinygp_and_loo_is_exact():
+    tinygp = pytest.importorskip("tinygp")
+    rng = np.random.default_rng(0)
+    x = rng.uniform(0, 3, (30, 2))
+    y = np.sin(x[:, 0]) * x[:, 1] + 0.02 * rng.normal(size=30)
+    gp = GPRegressor(n_restarts=0).fit(x, y)
+    st = gp.state_
+    th = np.asarray(st.theta)
+    ys = y / float(st.y_scale)
+    kern = np.exp(2 * th[0]) * tinygp.transforms.Linear(
+        1.0 / (np.asarray(st.x_scale) * np.exp(th[1:3])), tinygp.kernels.ExpSquared())
+    jitter = 1e-10 * np.exp(2 * th[0])
+    ref = tinygp.GaussianProcess(kern, x, diag=np.exp(2 * th[-1]) + jitter).log_probability(ys)
+    ours = -neg_log_marginal_likelihood(st.theta, jnp.asarray(x), jnp.asarray(ys), st.x_scale,
+                                        st.x_center)
+    assert float(ours) == pytest.approx(float(ref), rel=1e-9, abs=1e-8)
+    # closed-form LOO residuals = refits without each point at the same hyperparameters
+    brute = []
+    for i in range(0, 30, 7):
+        keep = np.arange(30) != i
+        gi = GPRegressor(n_restarts=0).fit(x[keep], y[keep], theta=th,
+                                          x_scale=np.asarray(st.x_scale),
+                                          y_scale=float(st.y_scale))
+        brute.append(float(gi.predict(x[i : i + 1])[0]) - y[i])
+    kinv = np.linalg.inv(np.asarray(st.chol) @ np.asarray(st.chol).T)
+    closed = -(kinv @ ys)[::7] / np.diag(kinv)[::7] * float(st.y_scale)
+    np.testing.assert_allclose(closed, brute, rtol=1e-6, atol=1e-10)
+
+
+def test_gp_selection_recovers_noise_instead_of_interpolating():
+    rng = np.random.default_rng(1)
+    x = np.linspace(0, 6, 60)[:, None]
+    y = np.sin(x[:, 0]) + 0.05 * rng.normal(size=60)
+    for crit in ("ml", "loo"):
+        gp = GPRegressor(criterion=crit, n_restarts=1, seed=2).fit(x, y)
+        noise = gp.hyperparameters_["noise_std"]
+        assert 0.03 < noise < 0.08, (crit, noise)  # a training-loss fit would give ~0
+        assert gp.train_rmse_ > 0.02
+
+
+def test_gp_pathwise_samples_have_the_posterior_moments():
+    rng = np.random.default_rng(3)
+    x = rng.uniform(0, 3, (25, 2))
+    y = np.cos(x[:, 0]) + x[:, 1] ** 2 + 0.05 * rng.normal(size=25)
+    gp = GPRegressor(basis=((0, 0), (1, 0), (0, 2)), n_restarts=0).fit(x, y)
+    xt = np.array([[0.5, 0.5], [1.5, 2.9], [4.5, 1.0]])  # the last one extrapolates
+    mu, sd = gp.predict(xt, return_std=True)
+    s = gp.sample_functions(2000, seed=5, n_features=2048)
+    vals = np.asarray(jax.vmap(sample_eval, in_axes=(None, 0, None))(gp.state_, s,
+                                                                    jnp.asarray(xt)))
+    np.testing.assert_allclose(vals.mean(0), mu, atol=4 * sd.max() / math.sqrt(2000) + 1e-6)
+    np.testing.assert_allclose(vals.std(0), sd, rtol=0.1)
+    assert sd[2] > 2 * max(sd[0], sd[1])  # wider away from the data
+
+
+# ------------------------------------------------------------------------------ the model
+
+
+def test_fit_recovers_forcing_scale_and_reduced_dynamics(model):
+    assert model.forcing_scale_ == pytest.approx(KAPPA, rel=1e-3)
+    rho = np.linspace(0.3, 3.3, 7)
+    a, b = model.reduced_dynamics(rho, 1.002)
+    np.testing.assert_allclose(a, -C * rho, rtol=1e-3, atol=1e-7)
+    np.testing.assert_allclose(b, W0 + K * rho**2, rtol=0, atol=2e-6)
+    assert model.losses_["forcing_rel_rms"] < 1e-4
+    assert model.losses_["phase_rms"] < 1e-4
+    assert model.parameters()["linear_frequency"] == pytest.approx(W0, abs=1e-5)
+
+
+@pytest.mark.parametrize("forcing", [0.004, 0.012])
+def test_frc_at_untrained_forcing_matches_the_exact_curve(model, forcing):
+    br = model.frc(forcing, (0.97, 1.03), n_samples=20)
+    g = KAPPA * forcing
+    peak = br.meta["peak"]
+    assert peak["amplitude"] == pytest.approx(g / C, rel=1e-3)
+    assert peak["omega"] == pytest.approx(W0 + K * (g / C) ** 2, abs=2e-5)
+    folds = np.sort([sp.param for sp in br.special("fold")])
+    np.testing.assert_allclose(folds, exact_folds(forcing), rtol=1e-5)
+    # every point is on the exact curve at its own phase
+    psi = br.solutions[:, 1]
+    om, rho = curve(forcing, psi)
+    np.testing.assert_allclose(br.solutions[:, 0], rho, rtol=1e-3, atol=1e-6)
+    np.testing.assert_allclose(br.params, om, atol=2e-5)
+    # stability: the exact Jacobian of eq. 6.10 (a = −cρ, b = ω₀ + kρ²) at each point
+    r, cp, sp_ = br.solutions[:, 0], np.cos(psi), np.sin(psi)
+    det = C * g * sp_ / r - g * cp * (2 * K * r - g * cp / r**2)
+    clear = np.abs(det) > 0.02 * np.abs(det).max()
+    assert np.array_equal(br.stable[clear], det[clear] > 0)
+    assert np.any(det < 0) == (folds.size == 2)
+    # band: the exact curve is inside it at most points; wider when extrapolating
+    cov = band_coverage(br, om, rho, np.pi - psi)
+    assert cov["n"] > 50 and cov["coverage"] > 0.6
+
+
+def test_band_widens_away_from_the_data(model):
+    inside = model.frc(0.0085, (0.97, 1.03), n_samples=20)
+    outside = model.frc(0.02, (0.97, 1.05), n_samples=20)
+    w_in = np.median(np.diff(inside.data["band_offset"], axis=1))
+    w_out = np.median(np.diff(outside.data["band_offset"], axis=1))
+    assert w_out > 3 * w_in
+    bb = model.backbone((0.1, 8.0), n_samples=20)
+    width = np.diff(bb.data["band_omega"], axis=1)[:, 0]
+    trained = bb.params <= model.rho_range_[1]
+    assert np.median(width[~trained]) > 3 * np.median(width[trained])
+
+
+def test_backbone_and_scurve_match_exact_formulas(model):
+    bb = model.backbone((0.2, 3.2))
+    np.testing.assert_allclose(bb.data["omega"], W0 + K * bb.params**2, atol=2e-6)
+    om = 1.004  # above resonance: an S-curve with two folds
+    sc = model.scurve(om, (0.0, 0.012))
+    rho = sc.data["observed_amplitude"]
+    f_exact = np.sqrt((C * rho) ** 2 + (W0 + K * rho**2 - om) ** 2 * rho**2) / KAPPA
+    np.testing.assert_allclose(sc.params, f_exact, rtol=2e-3, atol=1e-7)
+    rr = np.linspace(1e-3, 6, 600_001)
+    ff = np.sqrt((C * rr) ** 2 + (W0 + K * rr**2 - om) ** 2 * rr**2) / KAPPA
+    dd = np.diff(ff)
+    exact = np.sort(ff[np.nonzero(np.sign(dd[:-1]) != np.sign(dd[1:]))[0] + 1])
+    folds = np.sort([sp.param for sp in sc.special("fold")])
+    np.testing.assert_allclose(folds, exact, rtol=2e-3)
+    # the middle branch between the folds is unstable, the others stable
+    lo, hi = sorted(sp.data["amplitude"] for sp in sc.special("fold"))
+    mid = (rho > lo * 1.02) & (rho < hi * 0.98)
+    assert np.all(~sc.stable[mid]) and np.all(sc.stable[(rho < lo * 0.98) | (rho > hi * 1.02)])
+
+
+def test_time_series_through_the_observation_model(model):
+    fp = model.fixed_points(1.002, 0.009)
+    assert len(fp) >= 1
+    p = fp[0]
+    t = np.linspace(0, 2 * np.pi / 1.002, 50)
+    y = model.time_series(t, p["rho"], p["psi"], 1.002)
+    exact = -p["rho"] * np.cos(1.002 * t + p["psi"])
+    assert np.sqrt(np.mean((y - exact) ** 2)) < 1e-3 * p["rho"]
+
+
+def test_save_load_roundtrip_and_no_pickle(model, tmp_path):
+    d = model.save(tmp_path / "m")
+    meta = json.loads((d / "model.json").read_text())
+    assert meta["type"] == "forced_kernel"
+    loaded = ForcedKernelModel.load(d)
+    r = np.linspace(0.5, 3, 5)
+    np.testing.assert_allclose(loaded.reduced_dynamics(r, 1.0), model.reduced_dynamics(r, 1.0),
+                               rtol=1e-12, atol=1e-15)
+    assert loaded.frc(0.01, (0.98, 1.02)).meta["peak"]["amplitude"] == pytest.approx(
+        model.frc(0.01, (0.98, 1.02)).meta["peak"]["amplitude"], rel=1e-10)
+    with np.load(d / "arrays.npz", allow_pickle=False) as z:
+        assert all(z[k].dtype.kind in "biuf" for k in z.files)
+
+
+def test_invariance_to_a_given_forcing_scale(dataset):
+    m2 = ForcedKernelModel(forcing_scale=1.0, n_restarts=0, observation=False).fit(dataset)
+    peak = m2.frc(0.01, (0.98, 1.02)).meta["peak"]["amplitude"]
+    assert peak == pytest.approx(KAPPA * 0.01 / C, rel=2e-3)
+
+
+def test_input_errors_and_unfitted():
+    with pytest.raises(NotFittedError):
+        ForcedKernelModel().frc(0.01)
+    with pytest.raises(BifidInputError, match="forcing_scale"):
+        ForcedKernelModel(forcing_scale=-1.0).fit(omega=[1, 1.1, 1.2, 1.3], forcing=[1] * 4,
+                                                  amplitude=[1] * 4, phase=[1] * 4)
+    with pytest.raises(BifidInputError, match="four arrays"):
+        ForcedKernelModel().fit(omega=[1.0, 1.1])
+    with pytest.raises(BifidInputError, match="at least 4"):
+        ForcedKernelModel().fit(omega=[1, 1.1, 1.2, 1.3], forcing=[1] * 4,
+                                amplitude=[1] * 4, phase=[np.nan, np.nan, 1, 1])
+    with pytest.raises(BifidInputError, match="a_basis"):
+        ForcedKernelModel(a_basis=((0, 0),)).fit(omega=[1, 1.1, 1.2, 1.3], forcing=[1] * 4,
+                                                 amplitude=[1] * 4, phase=[1] * 4)
+
+
+def test_single_frequency_needs_a_scale_or_linear_frequency():
+    om = 0.98
+    rho = np.linspace(0.2, 3.0, 12)
+    g = np.sqrt((C * rho) ** 2 + (W0 + K * rho**2 - om) ** 2 * rho**2)
+    lag = np.pi - np.arctan2(C * rho, -(W0 + K * rho**2 - om) * rho)
+    with pytest.raises(BifidInputError, match="several forcing frequencies"):
+        ForcedKernelModel(forcing_scale="fit", observation=False).fit(
+            omega=np.full(12, om), forcing=g / KAPPA, amplitude=rho, phase=lag)
+    m = ForcedKernelModel(linear_frequency=W0, n_restarts=0, observation=False).fit(
+        omega=np.full(12, om), forcing=g / KAPPA, amplitude=rho, phase=lag)
+    assert m.forcing_scale_ == pytest.approx(KAPPA, rel=1e-3)
+    m1 = ForcedKernelModel(n_restarts=0, observation=False).fit(
+        omega=np.full(12, om), forcing=g / KAPPA, amplitude=rho, phase=lag)
+    assert m1.forcing_scale_ == 1.0 and any("κ" in n for n in m1.notes_)
+
+
+# ------------------------------------------------------------------------------ CLI
+
+
+def _run(argv, capsys):
+    import bifid.cli._fit_forced
+    import bifid.cli._predict  # noqa: F401
+    from bifid.cli._common import app
+
+    capsys.readouterr()
+    try:
+        app(args=argv, prog_name="bifid")
+        code = 0
+    except SystemExit as exc:
+        code = int(exc.code or 0)
+    out, err = capsys.readouterr()
+    return code, out, err
+
+
+def test_cli_fit_and_predict(dataset, tmp_path: Path, capsys):
+    data = tmp_path / "d.nc"
+    save_dataset(dataset, data)
+    code, out, err = _run(["fit", "forced", str(data), "--out", str(tmp_path / "m"),
+                           "--restarts", "0", "--json"], capsys)
+    assert code == 0, err
+    payload = json.loads(out)
+    assert {"parameters", "losses", "settings"} <= set(payload)
+    assert payload["parameters"]["forcing_scale"] == pytest.approx(KAPPA, rel=1e-3)
+    code, out, err = _run(["predict", str(tmp_path / "m"), "--frc", "--forcing", "0.012",
+                           "--omega-range", "0.97", "1.03", "--set", "n_samples=8",
+                           "--json"], capsys)
+    assert code == 0, err
+    p = json.loads(out)
+    assert {"points", "folds", "peak", "band"} <= set(p)
+    assert p["peak"]["amplitude"] == pytest.approx(KAPPA * 0.012 / C, rel=1e-3)
+    assert len(p["folds"]) == 2 and all(isinstance(q["stable"], bool) for q in p["points"])
+    code, out, err = _run(["predict", str(tmp_path / "m"), "--scurve", "--omega", "1.004",
+                           "--forcing-range", "0", "0.012", "--json"], capsys)
+    assert code == 0, err
+    p = json.loads(out)
+    assert {"points", "folds"} <= set(p) and len(p["folds"]) == 2
+    code, out, err = _run(["predict", str(tmp_path / "m"), "--backbone", "--amplitude-range",
+                           "0.5", "3", "--n-points", "5", "--json"], capsys)
+    assert code == 0, err
+    p = json.loads(out)
+    assert len(p["points"]) == 5
+    assert p["points"][-1]["omega"] == pytest.approx(W0 + K * 9, abs=1e-5)
+    code, out, err = _run(["predict", str(tmp_path / "m"), "--frc", "--forcing", "0.01",
+                           "--set", "kappa=2", "--json"], capsys)
+    assert code == 2 and out == "" and "n_samples" in err
