@@ -37,3 +37,7 @@ def shared_data() -> Path:
     if not SHARED_DATA.is_dir():
         pytest.skip("../shared/data not available")
     return SHARED_DATA
+
+# tests/wip holds the tests of capabilities still being built (see the issue notes); they
+# are not part of the default suite until their capability is finished.
+collect_ignore_glob = ["wip/*"]
