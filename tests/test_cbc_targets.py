@@ -74,6 +74,24 @@ def test_polar_target_reproduces_a_polar_curve():
         assert (float(r1), float(r2)) == pytest.approx((x1, x2), abs=1e-13)
 
 
+def test_polar_target_with_a_general_transform():
+    """Check ξ = T⁻¹(x - o): a tilted ellipse x = o + T (cos φ, sin φ) is the circle r* = 1."""
+    T = ((0.02, 0.005), (-0.03, 0.07))
+    t = PolarTarget(np.array([1.0, 0.0, 0.0]), origin=(0.001, -0.02), transform=T)
+    vec = jnp.asarray(t.vector())
+    aux = PolarTarget.compile(vec)
+    for phi in np.linspace(-3.0, 3.0, 7):
+        x = np.array([0.001, -0.02]) + np.asarray(T) @ np.array([math.cos(phi), math.sin(phi)])
+        for fn, arg in ((PolarTarget.reference, vec), (PolarTarget.fast_reference, aux)):
+            r1, r2 = fn(arg, x[0], x[1], 0.0, 0.0)
+            assert (float(r1), float(r2)) == pytest.approx(tuple(x), abs=1e-12)
+    ph, r = t.polar(*(np.array([0.001, -0.02])[:, None] + np.asarray(T) @ np.array(
+        [[1.0, 0.0], [0.0, 1.0]])))
+    np.testing.assert_allclose(r, 1.0)
+    with pytest.raises(BifidInputError, match="invertible"):
+        PolarTarget([1.0], transform=((1.0, 2.0), (2.0, 4.0)))
+
+
 def test_target_validation():
     """Check malformed targets and controllers are rejected with a clear message."""
     with pytest.raises(BifidInputError, match="2q\\+1"):

@@ -18,7 +18,7 @@ from bifid.cbc import FourierTarget, PDController, VirtualRig
 from bifid.cbc._defaults import defaults_for
 from bifid.cbc._forced import ForcedCBCOptions, folds_of, frc_cbc, scurve_cbc
 from bifid.cbc._fourier import fourier_project
-from bifid.cbc._ppcbc import PPCBCOptions, ppcbc_continuation, ppcbc_sweep
+from bifid.cbc._ppcbc import ppcbc_continuation, ppcbc_sweep
 from bifid.cbc._stability import controlled_floquet, orbit_polar_target
 from bifid.cbc._truth import (
     centred_amplitudes,
@@ -48,8 +48,9 @@ def _truth(s, pt):
 
 def _sweep(noise):
     s = get_system("flutter")
-    rig = VirtualRig(s, {"U": 15.0}, noise=noise, seed=5, record_states=True)
-    opts = PPCBCOptions(measure_periods=8.0 if noise else 4.0, settle_periods=6.0)
+    d = defaults_for("flutter")
+    rig = d.rig(s, {"U": 15.0}, noise=noise, seed=5, record_states=True)
+    opts = d.ppcbc_options(measure_periods=8.0 if noise else 4.0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         pts, fails = ppcbc_sweep(rig, "U", U_VALUES, GRID, opts, omega_guess=15.0)
@@ -101,20 +102,21 @@ def test_flutter_controlled_floquet(clean):
     for pt in pts:
         Vc, T, _, stable = _truth(s, pt)
         p = np.asarray(s.param_vector(U=pt.param))
-        om = 2 * np.pi / T
-        tgt = orbit_polar_target(Vc, s, "h", "h_dot", 10, scale=(1.0, -om), p=p)
+        tgt = orbit_polar_target(Vc, s, opts.x1, opts.x2, 10, transform=pt.target.transform,
+                                 origin=pt.target.origin, p=p)
         mu, fmax = controlled_floquet(s, opts.controller, tgt, Vc, T, p)
         assert np.min(np.abs(mu - 1.0)) < 1e-5
-        assert fmax < 0.7
-        _, f_open = controlled_floquet(s, PDController(0, 0, "h", "h_dot"), tgt, Vc, T, p)
+        assert fmax < 0.6
+        _, f_open = controlled_floquet(s, PDController(0, 0, opts.x1, opts.x2), tgt, Vc, T, p)
         assert (f_open > 1.0) is (not stable)
 
 
 def test_flutter_polar_continuation():
     """Check Example 3.3: Newton-Broyden + arclength in U along the unstable branch."""
     s = get_system("flutter")
-    rig = VirtualRig(s, {"U": 17.0}, record_states=True)
-    opts = PPCBCOptions(settle_periods=6.0, measure_periods=4.0, stability=False)
+    d = defaults_for("flutter")
+    rig = d.rig(s, {"U": 17.0}, record_states=True)
+    opts = d.ppcbc_options(stability=False)
     from bifid.cbc._ppcbc import ppcbc_scan
 
     start, _ = ppcbc_scan(rig, "U", 17.0, np.linspace(0.006, 0.014, 5), opts, omega_guess=15.0)

@@ -238,29 +238,38 @@ class EllipticTarget(AbstractTarget):
 class PolarTarget(AbstractTarget):
     """General polar-curve PP-CBC target, thesis eqs. 3.20-3.22.
 
-    In the scaled coordinates ``ξ1 = (x1 - o1)/s1``, ``ξ2 = (x2 - o2)/s2`` (the linear
-    change of coordinates of eq. 3.12; ``s = (1, 1)``, ``o = 0`` is eq. 3.21 as printed)
+    In the coordinates ``ξ = T⁻¹ (x - o)`` (the linear change of coordinates of
+    eq. 3.12, generalised to any invertible 2x2 ``T``; ``T = diag(scale)``, ``o = 0`` with
+    ``scale = (1, 1)`` is eq. 3.21 as printed)
 
     .. math::
 
         φ = \\operatorname{atan2}(ξ_2, ξ_1),\\quad
-        r^*(φ) = a_0^* + \\sum_{j=1}^{n_h} a_j^*\\cos jφ + b_j^*\\sin jφ,\\\\
-        x_1^* = o_1 + s_1 r^*(φ)\\cos φ,\\quad x_2^* = o_2 + s_2 r^*(φ)\\sin φ .
+        r^*(φ) = a_0^* + \\sum_{j=1}^{n_h} a_j^*\\cos jφ + b_j^*\\sin jφ,\\quad
+        x^* = o + T\\, r^*(φ) (\\cos φ, \\sin φ)^T .
+
+    Choosing ``T`` from the first harmonics of a measured orbit (``x - o ≈ a cos θ +
+    b sin θ``, ``T = [a b] / |(a_1, b_1)|``) maps its ellipse to a circle: ``r*(φ)`` is then
+    nearly constant, its harmonics (set by the orbit's nonlinearity only) decay fast, and
+    ``a0`` is close to the first-harmonic amplitude of ``x1``.
 
     Parameters
     ----------
     coefficients : array of shape (2 n_h + 1,)
         ``[a0*, a1*..a_nh*, b1*..b_nh*]`` (eq. 3.24 ordering; ``a0`` is the mean radius).
     scale : (float, float)
-        ``(s1, s2)``, non-zero.
+        ``T = diag(scale)`` when ``transform`` is not given.
     origin : (float, float)
-        ``(o1, o2)``.
+        ``o``.
+    transform : 2x2 nested tuple, optional
+        ``T`` (rows), invertible.
     """
 
     kind: ClassVar[str] = "polar"
     coefficients: np.ndarray = field(default_factory=lambda: np.zeros(1))
     scale: tuple[float, float] = (1.0, 1.0)
     origin: tuple[float, float] = (0.0, 0.0)
+    transform: tuple[tuple[float, float], tuple[float, float]] | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "coefficients", _coefficients("coefficients", self.coefficients))
@@ -272,20 +281,46 @@ class PolarTarget(AbstractTarget):
             raise BifidInputError(f"origin must be two numbers, got {self.origin!r}.")
         object.__setattr__(self, "scale", sc)
         object.__setattr__(self, "origin", org)
+        if self.transform is not None:
+            T = np.asarray(self.transform, dtype=float)
+            if T.shape != (2, 2) or not np.all(np.isfinite(T)):
+                raise BifidInputError(f"transform must be a finite 2x2 matrix, got {T!r}.")
+            if abs(np.linalg.det(T)) <= 1e-14 * max(np.max(np.abs(T)) ** 2, 1e-300):
+                raise BifidInputError(f"transform must be invertible, got {T.tolist()}.")
+            object.__setattr__(self, "transform", (tuple(T[0]), tuple(T[1])))
+
+    @property
+    def matrix(self) -> np.ndarray:
+        """``T`` as a 2x2 array."""
+        if self.transform is not None:
+            return np.array(self.transform, dtype=float)
+        return np.diag(np.asarray(self.scale, dtype=float))
 
     @property
     def n_harmonics(self) -> int:
         return (self.coefficients.shape[0] - 1) // 2
 
     def vector(self) -> np.ndarray:
-        return np.concatenate([self.scale, self.origin, self.coefficients])
+        return np.concatenate([self.matrix.ravel(), self.origin, self.coefficients])
+
+    @staticmethod
+    def _xi(head, x1, x2):
+        t11, t12, t21, t22, o1, o2 = (head[i] for i in range(6))
+        det = t11 * t22 - t12 * t21
+        d1, d2 = x1 - o1, x2 - o2
+        return (t22 * d1 - t12 * d2) / det, (t11 * d2 - t21 * d1) / det
+
+    @staticmethod
+    def _back(head, r, c, s):
+        t11, t12, t21, t22, o1, o2 = (head[i] for i in range(6))
+        return o1 + r * (t11 * c + t12 * s), o2 + r * (t21 * c + t22 * s)
 
     @staticmethod
     def reference(vec, x1, x2, theta, omega):
-        s1, s2, o1, o2 = vec[0], vec[1], vec[2], vec[3]
-        c, s, _ = _angle((x1 - o1) / s1, (x2 - o2) / s2)
-        r, _ = harmonic_series(vec[4:], c, s)
-        return o1 + s1 * r * c, o2 + s2 * r * s
+        xi1, xi2 = PolarTarget._xi(vec, x1, x2)
+        c, s, _ = _angle(xi1, xi2)
+        r, _ = harmonic_series(vec[6:], c, s)
+        return PolarTarget._back(vec, r, c, s)
 
     @staticmethod
     def compile(vec: Array):
@@ -294,34 +329,40 @@ class PolarTarget(AbstractTarget):
         # Interpolation error <= (Δφ)²/8 max|r*''| ≈ 3e-7 Σ_k k² |c_k| (negligible
         # against the 1e-4 tolerances of the protocols).
         phi = -jnp.pi + (2.0 * jnp.pi / POLAR_TABLE) * jnp.arange(POLAR_TABLE + 1)
-        q = (vec.shape[0] - 5) // 2
+        c = vec[6:]
+        q = (c.shape[0] - 1) // 2
         k = jnp.arange(1, q + 1, dtype=vec.dtype)
-        c = vec[4:]
         r = c[0] + jnp.cos(phi[:, None] * k) @ c[1 : q + 1] + jnp.sin(phi[:, None] * k) @ c[q + 1 :]
-        return vec[:4], r
+        return vec[:6], r
 
     @classmethod
     def fast_reference(cls, aux, x1, x2, theta, omega):
         head, table = aux
-        s1, s2, o1, o2 = head[0], head[1], head[2], head[3]
-        xi1, xi2 = (x1 - o1) / s1, (x2 - o2) / s2
+        xi1, xi2 = PolarTarget._xi(head, x1, x2)
         c, s, _ = _angle(xi1, xi2)
         u = (jnp.arctan2(s, c) + jnp.pi) * (POLAR_TABLE / (2.0 * jnp.pi))
         i = jnp.clip(jnp.floor(u), 0, POLAR_TABLE - 1)
         f = u - i
         i = i.astype(jnp.int32)
         r = table[i] + f * (table[i + 1] - table[i])
-        return o1 + s1 * r * c, o2 + s2 * r * s
+        return PolarTarget._back(head, r, c, s)
 
     def with_coefficients(self, coefficients: np.ndarray) -> PolarTarget:
-        """Same scale and origin, new coefficients."""
-        return PolarTarget(coefficients=coefficients, scale=self.scale, origin=self.origin)
+        """Same coordinates (transform, origin), new coefficients."""
+        return PolarTarget(coefficients=coefficients, scale=self.scale, origin=self.origin,
+                           transform=self.transform)
 
     def polar(self, x1: np.ndarray, x2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """``(φ, r)`` of measured samples in the target's scaled coordinates."""
-        xi1 = (np.asarray(x1) - self.origin[0]) / self.scale[0]
-        xi2 = (np.asarray(x2) - self.origin[1]) / self.scale[1]
+        """``(φ, r)`` of measured samples in the target's coordinates ``ξ``."""
+        xi1, xi2 = self.to_xi(x1, x2)
         return np.arctan2(xi2, xi1), np.hypot(xi1, xi2)
+
+    def to_xi(self, x1: np.ndarray, x2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """``ξ = T⁻¹ (x - o)`` of samples."""
+        Ti = np.linalg.inv(self.matrix)
+        d1 = np.asarray(x1, dtype=float) - self.origin[0]
+        d2 = np.asarray(x2, dtype=float) - self.origin[1]
+        return Ti[0, 0] * d1 + Ti[0, 1] * d2, Ti[1, 0] * d1 + Ti[1, 1] * d2
 
 
 @dataclass(frozen=True)
@@ -374,5 +415,5 @@ def target_to_json(target: AbstractTarget | None) -> dict | None:
                 "offset": list(target.offset)}
     if isinstance(target, PolarTarget):
         return {"kind": target.kind, "coefficients": target.coefficients.tolist(),
-                "scale": list(target.scale), "origin": list(target.origin)}
+                "transform": target.matrix.tolist(), "origin": list(target.origin)}
     return {"kind": getattr(target, "kind", type(target).__name__)}

@@ -4,13 +4,18 @@ Every gain pair below was chosen from the Floquet multipliers of the *controlled
 at converged orbits (``controlled_floquet``; the numbers are in ``docs/cbc.md`` and
 checked by ``tests/test_cbc_stability.py``):
 
-- ``flutter`` -- PP-CBC on ``(h, ḣ)`` with the force on the heave equation (eq. 3.25).
-  The derivative gain is what stabilises: ``kd > 0`` adds damping in proportion to the
-  radial error, which turns the saddle-type unstable LCO (multiplier 1.05-1.16) into a
-  node; ``kp`` only shifts the heave stiffness. ``kp = 50, kd = 40`` keep every
-  non-trivial multiplier below 0.58 on both branches for U = 15-18 m/s. (The thesis's
-  ``kp = kd = -100`` of Example 3.3 belong to another sign convention; with ours they
-  are violently destabilising.)
+- ``flutter`` -- PP-CBC in the plane of the two measured displacements ``(h, α)``
+  (laser and encoder on the rig: no derivative is estimated), control on the heave
+  equation (eq. 3.25), polar target with ``n_h = 10``: ``kp = -150, kd = -20`` keep every
+  non-trivial multiplier below 0.48 on both branches for U = 15-18 m/s (0.43-0.48; the
+  unstable LCOs have 1.05-1.16 without control). With noisy measurements this is the
+  plane to use: the gains multiply the raw noise of h and α (0.015 m/s² for 1 % noise)
+  instead of a differentiated one. The oscillation is started from rest by an elliptic
+  ``(h, ḣ)`` target with ``kp = 50, kd = 40`` (``bootstrap_gains``). The ``(h, ḣ)`` plane also
+  works (``--x2 h_dot --kp 50 --kd 40``: multipliers <= 0.58; ``kd > 0`` adds damping in
+  proportion to the radial error) but its derivative estimate feeds noise through
+  ``kd``. (The thesis's ``kp = kd = -100`` of Example 3.3 are unstable in either plane
+  with our conventions.)
 - ``hopf`` -- PP-CBC on ``(u1, u2)``, control on ``u1``: ``kp = 1`` gives a radial
   feedback ``kp (r* - r)/2`` that beats the LCO's instability ``2 r0² = 0.2`` of eq. 3.16
   (multiplier 0.15); the thesis's ``kp = 0.5, kd = -0.5`` also work (0.73).
@@ -33,12 +38,14 @@ class CBCDefaults:
     """Settings that make CBC work on one registered system."""
 
     sample_rate: float = 5000.0
+    derivative_cutoff: float | None = None
     outputs: tuple[str, ...] | None = None
     # phase-plane CBC (autonomous systems)
     x1: str = ""
     x2: str = ""
     kp: float = 1.0
     kd: float = 1.0
+    bootstrap_gains: tuple[float, float] | None = None
     amplitude_range: tuple[float, float] = (0.1, 1.0)
     n_amplitudes: int = 16
     omega_guess: float = 1.0
@@ -50,12 +57,33 @@ class CBCDefaults:
     signal_units: dict[str, str] = field(default_factory=dict)
     extra: dict[str, Any] = field(default_factory=dict)
 
+    def ppcbc_options(self, **overrides: Any):
+        """:class:`~bifid.cbc.PPCBCOptions` with these defaults (and overrides)."""
+        from bifid.cbc._ppcbc import PPCBCOptions
+
+        kw: dict[str, Any] = dict(x1=self.x1, x2=self.x2, kp=self.kp, kd=self.kd,
+                                  settle_periods=self.settle_periods,
+                                  measure_periods=self.measure_periods,
+                                  bootstrap_gains=self.bootstrap_gains)
+        kw.update(overrides)
+        return PPCBCOptions(**kw)
+
+    def rig(self, system, params=None, **overrides: Any):
+        """A :class:`~bifid.cbc.VirtualRig` of ``system`` with these defaults."""
+        from bifid.cbc._virtual import VirtualRig
+
+        kw: dict[str, Any] = dict(sample_rate=self.sample_rate, outputs=self.outputs,
+                                  derivative_cutoff=self.derivative_cutoff)
+        kw.update(overrides)
+        return VirtualRig(system, params, **kw)
+
 
 _DEFAULTS: dict[str, CBCDefaults] = {
     "flutter": CBCDefaults(
-        sample_rate=5000.0, outputs=("h", "alpha"), x1="h", x2="h_dot", kp=50.0, kd=40.0,
+        sample_rate=5000.0, derivative_cutoff=25.0, outputs=("h", "alpha"), x1="h",
+        x2="alpha", kp=-150.0, kd=-20.0, bootstrap_gains=(50.0, 40.0),
         amplitude_range=(0.004, 0.036), n_amplitudes=17, omega_guess=15.0,
-        settle_periods=10.0, measure_periods=5.0,
+        settle_periods=6.0, measure_periods=4.0,
         signal_units={"h": "m", "alpha": "rad"},
     ),
     "hopf": CBCDefaults(

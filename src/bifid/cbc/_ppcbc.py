@@ -46,6 +46,7 @@ from bifid.cbc._fourier import (
     HarmonicSecant,
     coefficient_noise,
     estimate_frequency,
+    evaluate_series,
     fourier_project,
     periodic_amplitude,
     polar_project,
@@ -87,6 +88,12 @@ class PPCBCOptions:
         max-norm of ``G`` over ``a0*`` for continuation) *and* on the last secant/Newton
         step (the error estimate of the target); the measurement-noise floor of the
         projections is added automatically.
+    amp_tol : float
+        Relative accuracy of a zero ``A*`` of the scan's control error (estimated from
+        the residual over the slope of ``Ξ`` and the last secant step).
+    max_invasiveness : float
+        A converged point whose control is larger than this fraction of the feedback
+        (``rms(u) / rms(kp x1 + kd x2)``) is rejected as invasive (controller lost).
     picard_max : int
         Picard iterations on the target shape per amplitude.
     secant_max : int
@@ -99,6 +106,9 @@ class PPCBCOptions:
         Label orbits by the switch-off test.
     nudge, watch_periods : float
         Relative target nudge before switch-off and the longest watch.
+    bootstrap_gains : (float, float), optional
+        ``(kp, kd)`` of an elliptic ``(x1, ẋ1)`` target that starts the oscillation from
+        rest (default: the protocol's own plane and gains).
     """
 
     x1: str = "h"
@@ -110,6 +120,8 @@ class PPCBCOptions:
     settle_periods: float = 10.0
     measure_periods: float = 5.0
     tol: float = 1e-4
+    amp_tol: float = 1e-3
+    max_invasiveness: float = 0.05
     picard_max: int = 12
     secant_max: int = 25
     newton_max: int = 12
@@ -117,13 +129,15 @@ class PPCBCOptions:
     stability: bool = True
     nudge: float = 0.05
     watch_periods: float = 20.0
+    bootstrap_gains: tuple[float, float] | None = None
 
     def __post_init__(self) -> None:
         if self.target not in ("polar", "elliptic"):
             raise BifidInputError(f"target must be 'polar' or 'elliptic', got {self.target!r}.")
         if int(self.n_harmonics) < 1:
             raise BifidInputError(f"n_harmonics must be >= 1, got {self.n_harmonics!r}.")
-        for name in ("settle_periods", "measure_periods", "tol", "fd_step", "watch_periods"):
+        for name in ("settle_periods", "measure_periods", "tol", "fd_step", "watch_periods",
+                     "amp_tol", "max_invasiveness"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise BifidInputError(f"{name} must be a positive number, got {v!r}.")
@@ -225,6 +239,10 @@ class PPCBCFailure:
         return {"param": self.param, "reason": self.reason, **self.data}
 
 
+class _Invasive(Exception):
+    """A 'converged' point whose control is not small: rejected, reported as a failure."""
+
+
 # ----------------------------------------------------------------------------- measuring
 @dataclass
 class _Response:
@@ -239,19 +257,55 @@ class _Response:
 class _Family:
     """Target family: how targets are built from (a0, shape) and read from responses."""
 
-    def __init__(self, opts: PPCBCOptions, scale: tuple[float, float], origin: tuple[float, float]):
+    def __init__(self, opts: PPCBCOptions, matrix: np.ndarray | None = None,
+                 origin: tuple[float, float] = (0.0, 0.0)):
         self.o = opts
-        self.scale = scale
-        self.origin = origin
+        self.matrix = np.eye(2) if matrix is None else np.asarray(matrix, dtype=float)
+        self.inv = np.linalg.inv(self.matrix)
+        self.origin = (float(origin[0]), float(origin[1]))
 
     # target from its unknowns
     def target(self, a0: float, shape: np.ndarray) -> AbstractTarget:
         if self.o.target == "elliptic":
             return EllipticTarget(max(a0, 0.0), float(shape[0]), (float(shape[1]), float(shape[2])))
         coef = np.concatenate([[max(a0, 0.0)], shape])
-        return PolarTarget(coefficients=coef, scale=self.scale, origin=self.origin)
+        T = self.matrix
+        return PolarTarget(coefficients=coef, origin=self.origin,
+                           transform=((T[0, 0], T[0, 1]), (T[1, 0], T[1, 1])))
+
+    def _from_fit(self, c1: np.ndarray, c2: np.ndarray) -> tuple[float, np.ndarray,
+                                                                   np.ndarray | None]:
+        """``(a0, shape, polar coefficients)`` of the curve given by the time-domain fits."""
+        q = (c1.shape[0] - 1) // 2
+        if self.o.target == "elliptic":
+            A1 = math.hypot(c1[1], c1[q + 1])
+            A2 = math.hypot(c2[1], c2[q + 1])
+            # sense of rotation in (x1, x2): sign of the area swept (a1 b2 - b1 a2)
+            rot = 1.0 if (c1[1] * c2[q + 1] - c1[q + 1] * c2[1]) >= 0 else -1.0
+            aspect = rot * A2 / max(A1, 1e-300)
+            return A1, np.array([aspect, c1[0], c2[0]]), None
+        grid = np.linspace(0.0, 2.0 * np.pi, 2048, endpoint=False)
+        d1 = evaluate_series(c1, grid) - self.origin[0]
+        d2 = evaluate_series(c2, grid) - self.origin[1]
+        xi1 = self.inv[0, 0] * d1 + self.inv[0, 1] * d2
+        xi2 = self.inv[1, 0] * d1 + self.inv[1, 1] * d2
+        coef = polar_project(np.arctan2(xi2, xi1), np.hypot(xi1, xi2), self.o.n_harmonics)
+        return float(coef[0]), coef[1:].copy(), coef
 
     def analyse(self, m: Measurement, omega_hint: float) -> _Response:
+        """Measure the response curve in the target's own terms, with its noise floor.
+
+        Both signals are first fitted in *time* by Fourier series at the measured
+        frequency (linear in the data, so measurement noise averages out without bias);
+        the curve's parameters (elliptic: amplitude, aspect ratio, centre; polar: the
+        coefficients of eq. 3.24) are computed from the fitted curve. A radius computed
+        sample by sample would be biased upwards by the noise of a derivative estimate.
+        With three or more periods the quantities are computed period by period and
+        averaged (batch means): the noise floor is 3 standard errors of that mean, which
+        also captures the random motion that measurement noise injects through the
+        controller, and single-period fits are immune to the phase diffusion of a noisy
+        autonomous oscillation.
+        """
         x1, x2 = m.signal(self.o.x1), m.signal(self.o.x2)
         om = estimate_frequency(x1, m.sample_rate)
         if not (om > 0 and math.isfinite(om)):
@@ -261,23 +315,42 @@ class _Family:
         n = whole_periods(x1.shape[0], om, m.sample_rate)
         x1, x2 = x1[-n:], x2[-n:]
         theta = om * np.arange(n) / m.sample_rate
-        c1 = fourier_project(x1, theta, 1)
-        c2 = fourier_project(x2, theta, 1)
-        resid = x1 - (c1[0] + c1[1] * np.cos(theta) + c1[2] * np.sin(theta))
-        A1 = math.hypot(c1[1], c1[2])
+        nfit = max(2 * self.o.n_harmonics, 12) if self.o.target == "polar" else 3
+        c = fourier_project(np.column_stack([x1, x2]), theta, nfit)
+        a0, shape, coef = self._from_fit(c[:, 0], c[:, 1])
+        resid = x1 - evaluate_series(c[:, 0], theta)
+        floor = coefficient_noise(resid) * float(np.hypot(*self.inv[:, 0]))
+        per = 2.0 * math.pi / om * m.sample_rate
+        k_per = round(n / per)
+        if k_per >= 3:
+            # batch means over single periods: also immune to the slow random walk of the
+            # phase of a noisy autonomous oscillation, which smears a fit at one fixed
+            # frequency over many periods (and biases its amplitude low)
+            vals, coefs = [], []
+            for k in range(k_per):
+                lo, hi = round(k * per), round((k + 1) * per)
+                ck = fourier_project(np.column_stack([x1[lo:hi], x2[lo:hi]]), theta[lo:hi], nfit)
+                a0k, shk, cok = self._from_fit(ck[:, 0], ck[:, 1])
+                vals.append(np.concatenate([[a0k], shk]))
+                coefs.append(cok)
+            v = np.asarray(vals)
+            mean = v.mean(axis=0)
+            a0, shape = float(mean[0]), mean[1:]
+            if coef is not None:
+                coef = np.mean(np.asarray(coefs), axis=0)
+            sd = np.std(v, axis=0, ddof=1) * np.concatenate([[1.0], self._shape_scale(a0, shape)])
+            floor = max(floor, 3.0 * float(np.max(sd)) / math.sqrt(k_per))
+        # a record that scatters by more than 1 % is not a steady orbit, not noise: cap the
+        # floor so that it can never widen a tolerance enough to accept it
+        floor = min(floor, 0.01 * abs(a0))
+        return _Response(m, om, a0, shape, coef, floor)
+
+    def _shape_scale(self, a0: float, shape: np.ndarray) -> np.ndarray:
+        """Weights that express shape changes in units of the amplitude ``a0``."""
         if self.o.target == "elliptic":
-            A2 = math.hypot(c2[1], c2[2])
-            # sense of rotation in (x1, x2): sign of the area swept (a1 b2 - b1 a2)
-            rot = 1.0 if (c1[1] * c2[2] - c1[2] * c2[1]) >= 0 else -1.0
-            aspect = rot * A2 / max(A1, 1e-300)
-            floor = coefficient_noise(resid)
-            return _Response(m, om, A1, np.array([aspect, c1[0], c2[0]]), None, floor)
-        xi1 = (x1 - self.origin[0]) / self.scale[0]
-        xi2 = (x2 - self.origin[1]) / self.scale[1]
-        phi = np.arctan2(xi2, xi1)
-        coef = polar_project(phi, np.hypot(xi1, xi2), self.o.n_harmonics)
-        floor = coefficient_noise(resid) / abs(self.scale[0])
-        return _Response(m, om, float(coef[0]), coef[1:].copy(), coef, floor)
+            w = max(abs(shape[0]), 1e-12)
+            return np.array([a0 / w, 1.0, 1.0 / w])
+        return np.ones_like(shape)
 
 
 def _evaluate(rig: AbstractRig, opts: PPCBCOptions, fam: _Family, target: AbstractTarget,
@@ -290,19 +363,69 @@ def _evaluate(rig: AbstractRig, opts: PPCBCOptions, fam: _Family, target: Abstra
 
 
 def _bootstrap(rig: AbstractRig, opts: PPCBCOptions, a_start: float, omega_guess: float
-               ) -> tuple[float, float, tuple[float, float], tuple[float, float]]:
-    """Engage an elliptic target to start an oscillation; return (ω, aspect, origin, scale)."""
+               ) -> tuple[float, float, tuple[float, float], tuple[float, float], np.ndarray]:
+    """Start an oscillation and measure the curve it draws in the ``(x1, x2)`` plane.
+
+    An elliptic target self-excites the rig from rest (the radial error acts as negative
+    damping until ``ρ ≈ A*``): on the protocol's own plane and gains, or, with
+    ``bootstrap_gains``, on ``(x1, ẋ1)`` with those gains (needed when the protocol's
+    controller cannot start an oscillation, e.g. the heave-pitch controller of flutter).
+    The curve measured in ``(x1, x2)`` gives the origin (centre), the aspect ratio with its
+    sense of rotation (elliptic target) or the transform ``T`` that maps its
+    first-harmonic ellipse to a circle (polar target), and the initial shape harmonics.
+
+    Returns
+    -------
+    omega, aspect, origin, transform (2x2), shape0
+    """
     derivative = opts.x2 == f"{opts.x1}_dot"
-    aspect = -omega_guess if derivative else 1.0
-    fam = _Family(PPCBCOptions(**{**opts.to_json(), "target": "elliptic"}), (1.0, 1.0), (0.0, 0.0))
-    shape = np.array([aspect, 0.0, 0.0])
+    if opts.bootstrap_gains is not None:
+        kp, kd = opts.bootstrap_gains
+        boot = PPCBCOptions(**{**opts.to_json(), "target": "elliptic",
+                               "x2": f"{opts.x1}_dot", "kp": kp, "kd": kd})
+        aspect0 = -omega_guess
+    else:  # the protocol's own plane and gains (e.g. (u1, u2) of eq. 3.16)
+        boot = PPCBCOptions(**{**opts.to_json(), "target": "elliptic"})
+        aspect0 = -omega_guess if derivative else 1.0
+    fam = _Family(boot)
+    shape = np.array([aspect0, 0.0, 0.0])
     omega = omega_guess
+    r = None
     for _ in range(4):
-        r = _evaluate(rig, fam.o, fam, fam.target(a_start, shape), omega)
-        omega = r.omega
-        shape = r.shape
-    aspect, o1, o2 = (float(v) for v in shape)
-    return omega, aspect, (o1, o2), (1.0, aspect)
+        r = _evaluate(rig, boot, fam, fam.target(a_start, shape), omega)
+        if r.a0 > 1e-3 * a_start and r.shape[0] != 0 and np.all(np.isfinite(r.shape)):
+            omega = r.omega
+            shape = r.shape
+    assert r is not None
+    if not r.a0 > 0.1 * a_start:
+        raise ConvergenceError(
+            f"the bootstrap controller did not start an oscillation (amplitude {r.a0:.3g} "
+            f"for a target of {a_start:.3g}); give bootstrap_gains with kp, kd > 0."
+        )
+    # the curve in the protocol's own plane
+    own = _Family(PPCBCOptions(**{**opts.to_json(), "target": "elliptic"}))
+    e = own.analyse(r.m, omega)
+    aspect, o1, o2 = (float(v) for v in e.shape)
+    if opts.target == "elliptic":
+        return omega, aspect, (o1, o2), np.eye(2), e.shape
+    # T maps the measured first-harmonic ellipse to a circle of radius |x1's harmonic|
+    m = r.m
+    x1, x2 = m.signal(opts.x1), m.signal(opts.x2)
+    n = whole_periods(x1.shape[0], omega, m.sample_rate)
+    th = omega * np.arange(n) / m.sample_rate
+    c = fourier_project(np.column_stack([x1[-n:], x2[-n:]]), th, 1)
+    T = np.array([[c[1, 0], c[2, 0]], [c[1, 1], c[2, 1]]])
+    A1 = math.hypot(c[1, 0], c[2, 0])
+    if not (A1 > 0 and abs(np.linalg.det(T)) > 1e-9 * np.max(np.abs(T)) ** 2):
+        raise ConvergenceError(
+            f"the orbit is degenerate in the ({opts.x1}, {opts.x2}) plane (a line): choose "
+            "two signals that are not in phase."
+        )
+    T = T / A1
+    polar = _Family(opts, T, (float(c[0, 0]), float(c[0, 1])))
+    pr = polar.analyse(r.m, omega)
+    shape0 = pr.shape / max(pr.a0, 1e-300) * a_start  # the measured shape at amplitude A*
+    return omega, aspect, (float(c[0, 0]), float(c[0, 1])), T, shape0
 
 
 # ------------------------------------------------------------------------ amplitude scan
@@ -325,7 +448,13 @@ class _Scanner:
         self.shape = np.asarray(shape, dtype=float)
         self.evals = 0
 
-    def __call__(self, a_star: float) -> _Eval:
+    def __call__(self, a_star: float, sign_only: bool = False) -> _Eval:
+        """Evaluate ``Ξ(A*)`` with the target shape converged by (accelerated) Picard.
+
+        ``sign_only`` (grid points of the scan): stop as soon as the shape error is
+        small against ``|Ξ|`` -- the sign of ``Ξ`` is then certain, and only the sign is
+        needed to bracket zeros.
+        """
         shape = self.shape.copy()
         ok = False
         resp = None
@@ -337,7 +466,8 @@ class _Scanner:
             self.evals += 1
             self.omega = resp.omega
             # the shape's control error (target minus response), in units of A*
-            err = float(np.max(np.abs(resp.shape - shape) * self._shape_weights(a_star)))
+            err = float(np.max(np.abs(resp.shape - shape)
+                               * self.fam._shape_scale(a_star, self.shape)))
             tol = self.o.tol * a_star + resp.floor
             if polar:
                 assert acc is not None
@@ -348,44 +478,53 @@ class _Scanner:
             if err <= tol:
                 ok = True
                 break
+            if sign_only and err < 0.2 * abs(a_star - resp.a0):
+                break
             shape = new_shape
         assert resp is not None
         self.shape = shape
         return _Eval(a_star, a_star - resp.a0, shape, resp, ok, self.evals - n0)
 
-    def _shape_weights(self, a_star: float) -> np.ndarray:
-        if self.o.target == "elliptic":
-            # aspect ratio changes matter through ω A*; centre offsets directly
-            return np.array([a_star / max(abs(self.shape[0]), 1e-12) * 1.0, 1.0, 1.0 / max(
-                abs(self.shape[0]), 1e-12)])
-        return np.ones_like(self.shape)
 
-
-def _illinois(f: Callable[[float], _Eval], a: _Eval, b: _Eval, tol_fn, rel_tol: float,
+def _illinois(f: Callable[[float], _Eval], a: _Eval, b: _Eval, rel_tol: float,
               max_iter: int) -> tuple[_Eval | None, int]:
     """Root of ``Ξ`` between evaluations ``a`` and ``b`` (opposite signs).
 
-    Converged when ``|Ξ|`` is within tolerance *and* the next secant step is below
-    ``rel_tol · A*`` (or the step that the noise floor of ``Ξ`` allows): with a strong
-    controller the response follows the target, ``Ξ = A* - A(A*)`` is flat near its zero
-    and a small ``|Ξ|`` alone does not bound the error of ``A*``.
+    Converged when the error estimate of ``A*`` is below ``rel_tol · A*`` (plus what the
+    noise floor of ``Ξ`` allows): the error estimate is the larger of ``|Ξ| / |Ξ'|`` (with
+    the secant slope ``Ξ'`` of the bracket) and the next secant step. With a strong
+    controller the response follows the target and ``Ξ = A* - A(A*)`` is flat near its
+    zero, so a small ``|Ξ|`` alone does not bound the error of ``A*``; with a weak one
+    ``Ξ`` is steep and a small error in ``A*`` shows as a large ``|Ξ|``.
     """
     fa, fb = a.xi, b.xi
+    best: _Eval | None = None
+    best_err = math.inf
     for it in range(max_iter):
         x = (a.a_star * fb - b.a_star * fa) / (fb - fa)
-        c = f(x)
-        if c.xi * fb < 0:
-            a, fa = b, fb
-        else:
-            fa = fa / 2.0
-        b, fb = c, c.xi
+        stagnant = abs(x - b.a_star) <= 1e-9 * abs(x) and it > 0
+        c = b if stagnant else f(x)
+        if not stagnant:
+            if c.xi * fb < 0:
+                a, fa = b, fb
+            else:
+                fa = fa / 2.0
+            b, fb = c, c.xi
         slope = abs((b.xi - a.xi) / (b.a_star - a.a_star)) if b.a_star != a.a_star else 0.0
         x_next = (a.a_star * fb - b.a_star * fa) / (fb - fa) if fb != fa else x
-        step_tol = rel_tol * c.a_star + (c.resp.floor / slope if slope > 0 else 0.0)
-        if abs(c.xi) <= tol_fn(c) and c.picard_ok and abs(x_next - c.a_star) <= step_tol:
+        if slope > 0:
+            err = max(abs(c.xi) / slope, abs(x_next - c.a_star))
+            allowed = rel_tol * c.a_star + c.resp.floor / slope
+        else:
+            err, allowed = math.inf, 0.0
+        if c.picard_ok and err < best_err:
+            best, best_err = c, err
+        if c.picard_ok and err <= allowed:
             return c, it + 1
-        if abs(b.a_star - a.a_star) < 1e-12 * max(abs(b.a_star), 1e-300):
+        if stagnant:
             break
+    if best is not None and best_err <= 3.0 * rel_tol * best.a_star + best.resp.floor:
+        return best, max_iter
     return None, max_iter
 
 
@@ -409,7 +548,8 @@ def ppcbc_scan(
         Parameter name on the rig (e.g. ``"U"``); set to ``value`` first.
     amplitudes : sequence of float
         Increasing grid of target amplitudes ``A*`` (of ``x1``'s first harmonic for the
-        elliptic target, of the mean scaled radius ``a0*`` for the polar one) on which
+        elliptic target, of the mean radius ``a0*`` in the target's coordinates -- close to
+        the first-harmonic amplitude of ``x1`` -- for the polar one) on which
         sign changes of ``Ξ`` are looked for. Zeros closer than the grid spacing can be
         missed.
     options : PPCBCOptions
@@ -441,26 +581,25 @@ def ppcbc_scan(
         failures.append(f)
 
     try:
-        omega, aspect, origin, scale = _bootstrap(rig, opts, float(grid[0]), omega_guess)
+        omega, aspect, origin, transform, shape0 = _bootstrap(rig, opts, float(grid[0]),
+                                                              omega_guess)
     except ConvergenceError as exc:
         fail(f"the controller could not start an oscillation at A*={grid[0]:.4g}: {exc}")
         return points, failures
     if opts.target == "elliptic":
-        fam = _Family(opts, (1.0, 1.0), (0.0, 0.0))
+        fam = _Family(opts)
         shape0 = np.array([aspect, origin[0], origin[1]])
     else:
-        fam = _Family(opts, scale, origin)
-        shape0 = np.zeros(2 * opts.n_harmonics)
+        fam = _Family(opts, transform, origin)
     scan = _Scanner(rig, opts, fam, omega, shape0)
     evals: list[_Eval] = []
-
-    def tol_fn(e: _Eval) -> float:
-        return opts.tol * e.a_star + e.resp.floor
+    solver: _PolarSolver | None = None
+    solver_J: np.ndarray | None = None
 
     a = float(grid[0])
     try:
         for a in grid:
-            e = scan(float(a))
+            e = scan(float(a), sign_only=True)
             evals.append(e)
             if on_iteration is not None:
                 on_iteration(scan.evals)
@@ -468,7 +607,47 @@ def ppcbc_scan(
                 continue
             lo, hi = evals[-2], e
             n0 = scan.evals
-            root, _ = _illinois(scan, lo, hi, tol_fn, opts.tol, opts.secant_max)
+            if opts.target == "polar":
+                # Newton-Broyden on all the target's coefficients at fixed parameter,
+                # from the secant estimate of the zero (robust where the shape's
+                # Picard iteration converges slowly)
+                x0 = (lo.a_star * hi.xi - hi.a_star * lo.xi) / (hi.xi - lo.xi)
+                y0 = np.concatenate([[x0], scan.shape, [value]])
+                if solver is None or solver_J is None:
+                    solver = _PolarSolver(rig, opts, fam, param, scan.omega, float(x0),
+                                          1.0, None)
+                    g0, _ = solver.G(y0)
+                    solver_J = solver.jacobian(y0, g0, with_param=False)
+                solver.state["omega"] = scan.omega
+                y, resp, J_new, res = solver.correct(y0, None, solver_J)
+                if y is None:  # a fresh Jacobian at the guess, once
+                    g0, _ = solver.G(y0)
+                    solver_J = solver.jacobian(y0, g0, with_param=False)
+                    y, resp, J_new, res = solver.correct(y0, None, solver_J)
+                scan.evals += solver.state["evals"]
+                solver.state["evals"] = 0
+                if on_iteration is not None:
+                    on_iteration(scan.evals)
+                if y is None:
+                    fail(f"Newton-Broyden on the polar target did not converge in "
+                         f"{opts.newton_max} iterations near A* = {x0:.4g}", a_star=x0)
+                    scan.shape = y0[1:-1]
+                else:
+                    solver_J = J_new
+                    try:
+                        pt = _make_point(rig, opts, fam, fam.target(float(y[0]), y[1:-1]),
+                                         resp, value, res, scan.evals - n0 + lo.n + hi.n,
+                                         "scan")
+                    except _Invasive as exc:
+                        fail(f"{exc} (A* = {y[0]:.4g})", a_star=float(y[0]))
+                    else:
+                        points.append(pt)
+                        if on_point is not None:
+                            on_point(pt)
+                    scan.shape = y[1:-1]
+                evals[-1] = scan(float(a), sign_only=True)
+                continue
+            root, _ = _illinois(scan, lo, hi, opts.amp_tol, opts.secant_max)
             if on_iteration is not None:
                 on_iteration(scan.evals)
             if root is None:
@@ -476,14 +655,18 @@ def ppcbc_scan(
                      f"secant iterations in A* = [{lo.a_star:.4g}, {hi.a_star:.4g}]",
                      bracket=[lo.a_star, hi.a_star])
             else:
-                pt = _finish_point(rig, opts, fam, root, value, scan.evals - n0 + lo.n + hi.n,
-                                   "scan")
-                points.append(pt)
-                if on_point is not None:
-                    on_point(pt)
+                try:
+                    pt = _finish_point(rig, opts, fam, root, value,
+                                       scan.evals - n0 + lo.n + hi.n, "scan")
+                except _Invasive as exc:
+                    fail(f"{exc} (A* = {root.a_star:.4g})", a_star=root.a_star)
+                else:
+                    points.append(pt)
+                    if on_point is not None:
+                        on_point(pt)
                 scan.shape = root.shape
             # the rig moved (refinement, stability test): re-settle on this grid point
-            evals[-1] = scan(float(a))
+            evals[-1] = scan(float(a), sign_only=True)
     except ConvergenceError as exc:
         fail(f"the controller did not hold the target near A*={a:.4g}: {exc}")
     return points, failures
@@ -518,6 +701,10 @@ def _make_point(rig, opts, fam, target, resp: _Response, value, residual, n_eval
                   offset=offs, control_rms=u_rms, invasiveness=inv, tracking_error=trk,
                   residual=float(residual), iterations=int(n_evals), branch=branch,
                   signal=opts.x1)
+    if not inv <= opts.max_invasiveness:
+        raise _Invasive(f"the converged control is invasive (rms(u)/rms(feedback) = {inv:.2g} "
+                        f"> {opts.max_invasiveness:g}): the controller does not hold an orbit "
+                        "of the uncontrolled system here")
     if opts.stability:
         res = _stability(rig, opts, fam, target, resp)
         pt.stable, pt.growth = res.stable, res.growth
@@ -581,6 +768,83 @@ def ppcbc_sweep(
     return points, failures
 
 
+# ------------------------------------------------------------- polar Newton-Broyden solver
+class _PolarSolver:
+    """Newton–Broyden on the polar zero problem ``G(c*, λ) = c* - Φ(r(φ; c*, λ))``.
+
+    ``y = (c*, λ)``; :meth:`correct` solves ``[G(y); row·(y - y_pred)] = 0`` (``row``
+    None: ``λ`` fixed) with a given Jacobian, updated by Broyden's rule in the weighted
+    metric ``w``, and a trust region on the steps.
+    """
+
+    def __init__(self, rig, opts: PPCBCOptions, fam: _Family, param: str, omega: float,
+                 a_ref: float, param_scale: float, on_iteration=None):
+        self.rig, self.o, self.fam, self.param = rig, opts, fam, param
+        self.nc = 2 * opts.n_harmonics + 1
+        self.a_ref, self.param_scale = a_ref, param_scale
+        self.w = np.concatenate([np.full(self.nc, 1.0 / a_ref**2), [1.0 / param_scale**2]])
+        self.state = {"omega": omega, "evals": 0}
+        self.on_iteration = on_iteration
+
+    def G(self, y: np.ndarray) -> tuple[np.ndarray, _Response]:
+        nc = self.nc
+        if self.rig.get_parameter(self.param) != float(y[-1]):
+            self.rig.set_parameter(self.param, float(y[-1]))
+        tgt = self.fam.target(float(y[0]), y[1:nc])
+        resp = _evaluate(self.rig, self.o, self.fam, tgt, self.state["omega"])
+        self.state["omega"] = resp.omega
+        self.state["evals"] += 1
+        if self.on_iteration is not None:
+            self.on_iteration(self.state["evals"])
+        return y[:nc] - resp.coeffs, resp
+
+    def jacobian(self, y: np.ndarray, g0: np.ndarray, with_param: bool = True) -> np.ndarray:
+        """Finite differences on the rig (``nc`` or ``nc + 1`` evaluations)."""
+        nc = self.nc
+        J = np.zeros((nc, nc + 1))
+        for j in range(nc + 1 if with_param else nc):
+            h = self.o.fd_step * (self.a_ref if j < nc else self.param_scale)
+            yp = y.copy()
+            yp[j] += h
+            gp, _ = self.G(yp)
+            J[:, j] = (gp - g0) / h
+        self.G(y)  # return the rig to the base point
+        return J
+
+    def correct(self, y_pred: np.ndarray, row: np.ndarray | None, J: np.ndarray,
+                max_step: float = math.inf
+                ) -> tuple[np.ndarray | None, _Response | None, np.ndarray, float]:
+        """Converged when ``max|G| <= tol a0`` and the Newton step (the error estimate of
+        ``y``) is below ``amp_tol a0``, each plus what the noise floor of ``G`` allows.
+        Steps longer than ``max_step`` (weighted norm) are shortened: far from the
+        solution a Broyden Jacobian can point anywhere, and the rig must not be sent
+        there."""
+        o, nc, w = self.o, self.nc, self.w
+        y = y_pred.copy()
+        g, resp = self.G(y)
+        Jk = J.copy()
+        for _ in range(o.newton_max):
+            extra = row if row is not None else np.eye(nc + 1)[-1]
+            A = np.vstack([Jk, extra[None, :]])
+            rhs = np.concatenate([-g, [0.0 if row is None else -(row @ (y - y_pred))]])
+            dy = np.linalg.solve(A, rhs)
+            noise_step = np.abs(np.linalg.solve(A, np.concatenate([np.full(nc, resp.floor),
+                                                                  [0.0]])))
+            if (np.max(np.abs(g)) <= o.tol * y[0] + resp.floor
+                    and np.max(np.abs(dy[:nc])) <= o.amp_tol * y[0]
+                    + np.max(noise_step[:nc])):
+                return y, resp, Jk, float(np.max(np.abs(g)) / y[0])
+            size = math.sqrt(float(dy @ (w * dy)))
+            if size > max_step:
+                dy = dy * (max_step / size)
+            y_new = y + dy
+            g_new, resp = self.G(y_new)
+            dyw = dy * w  # Broyden: J += (Δg - J Δy) Δyᵀ W / (Δyᵀ W Δy)
+            Jk = Jk + np.outer(g_new - g - Jk @ dy, dyw) / (dy @ dyw)
+            y, g = y_new, g_new
+        return None, resp, Jk, float(np.max(np.abs(g)) / y[0])
+
+
 # ------------------------------------------------------------------------- continuation
 def ppcbc_continuation(
     rig: AbstractRig,
@@ -638,32 +902,17 @@ def ppcbc_continuation(
     opts = options or PPCBCOptions()
     if opts.target != "polar" or not isinstance(start.target, PolarTarget):
         raise BifidInputError("continuation needs the polar target (options.target='polar').")
-    fam = _Family(opts, start.target.scale, start.target.origin)
+    fam = _Family(opts, start.target.matrix, start.target.origin)
     nc = 2 * opts.n_harmonics + 1
     a_ref = float(start.target.coefficients[0])
-    w = np.concatenate([np.full(nc, 1.0 / a_ref**2), [1.0 / param_scale**2]])
-    state = {"omega": start.frequency, "evals": 0}
+    solver = _PolarSolver(rig, opts, fam, param, start.frequency, a_ref, param_scale,
+                          on_iteration)
+    w = solver.w
+    state = solver.state
+    G, jacobian = solver.G, solver.jacobian
 
-    def G(y: np.ndarray) -> tuple[np.ndarray, _Response]:
-        rig.set_parameter(param, float(y[-1]))
-        tgt = fam.target(float(y[0]), y[1:nc])
-        resp = _evaluate(rig, opts, fam, tgt, state["omega"])
-        state["omega"] = resp.omega
-        state["evals"] += 1
-        if on_iteration is not None:
-            on_iteration(state["evals"])
-        return y[:nc] - resp.coeffs, resp
-
-    def jacobian(y: np.ndarray, g0: np.ndarray) -> np.ndarray:
-        J = np.empty((nc, nc + 1))
-        for j in range(nc + 1):
-            h = opts.fd_step * (a_ref if j < nc else param_scale)
-            yp = y.copy()
-            yp[j] += h
-            gp, _ = G(yp)
-            J[:, j] = (gp - g0) / h
-        G(y)  # return the rig to the base point
-        return J
+    def correct(y_pred, row, J, max_step=math.inf):
+        return solver.correct(y_pred, row, J, max_step)
 
     def y_of(pt: LCOPoint) -> np.ndarray:
         assert isinstance(pt.target, PolarTarget)
@@ -674,41 +923,6 @@ def ppcbc_continuation(
     ys = [y_of(start)]
     g0, _ = G(ys[0])
     J = jacobian(ys[0], g0)
-
-    def correct(y_pred: np.ndarray, row: np.ndarray | None, J: np.ndarray,
-                max_step: float = math.inf
-                ) -> tuple[np.ndarray | None, _Response | None, np.ndarray, float]:
-        """Broyden–Newton on [G; row.(y - y_pred)] (row None: fixed parameter).
-
-        Steps longer than ``max_step`` (weighted norm) are shortened: far from the
-        solution a Broyden Jacobian can point anywhere, and the rig must not be sent
-        there.
-        """
-        y = y_pred.copy()
-        g, resp = G(y)
-        Jk = J.copy()
-        for _ in range(opts.newton_max):
-            extra = (row if row is not None else np.eye(nc + 1)[-1])
-            A = np.vstack([Jk, extra[None, :]])
-            rhs = np.concatenate([-g, [0.0 if row is None else -(row @ (y - y_pred))]])
-            dy = np.linalg.solve(A, rhs)
-            # converged: small residual and a Newton step (= the error estimate of y) small
-            # against the tolerance and against what the noise floor of G allows
-            noise_step = np.abs(np.linalg.solve(A, np.concatenate([np.full(nc, resp.floor),
-                                                                  [0.0]])))
-            if (np.max(np.abs(g)) <= opts.tol * y[0] + resp.floor
-                    and np.max(np.abs(dy[:nc])) <= opts.tol * y[0] + np.max(noise_step[:nc])):
-                return y, resp, Jk, float(np.max(np.abs(g)) / y[0])
-            size = math.sqrt(float(dy @ (w * dy)))
-            if size > max_step:
-                dy = dy * (max_step / size)
-            y_new = y + dy
-            g_new, resp = G(y_new)
-            # Broyden: J += (Δg - J Δy) Δyᵀ / (Δyᵀ Δy) in the weighted metric
-            dyw = dy * w
-            Jk = Jk + np.outer(g_new - g - Jk @ dy, dyw) / (dy @ dyw)
-            y, g = y_new, g_new
-        return None, resp, Jk, float(np.max(np.abs(g)) / y[0])
 
     # second point: given, or a natural-parameter step corrected at fixed λ
     if second is not None:
@@ -725,8 +939,13 @@ def ppcbc_continuation(
             warnings.warn(f"PP-CBC continuation: {failures[-1].reason}.", ConvergenceWarning,
                           stacklevel=2)
             return points, failures
-        pt = _make_point(rig, opts, fam, fam.target(float(y1[0]), y1[1:nc]), resp,
-                         float(y1[-1]), res, state["evals"] - n0, "continuation")
+        try:
+            pt = _make_point(rig, opts, fam, fam.target(float(y1[0]), y1[1:nc]), resp,
+                             float(y1[-1]), res, state["evals"] - n0, "continuation")
+        except _Invasive as exc:
+            failures.append(PPCBCFailure(float(y1[-1]), str(exc)))
+            warnings.warn(f"PP-CBC continuation: {exc}.", ConvergenceWarning, stacklevel=2)
+            return points, failures
         points.append(pt)
         ys.append(y1)
         if on_point is not None:
@@ -759,8 +978,14 @@ def ppcbc_continuation(
         lam = float(y_new[-1])
         if not (bounds[0] <= lam <= bounds[1]):
             break
-        pt = _make_point(rig, opts, fam, fam.target(float(y_new[0]), y_new[1:nc]), resp, lam,
-                         res, state["evals"] - n0, "continuation")
+        try:
+            pt = _make_point(rig, opts, fam, fam.target(float(y_new[0]), y_new[1:nc]), resp,
+                             lam, res, state["evals"] - n0, "continuation")
+        except _Invasive as exc:
+            failures.append(PPCBCFailure(lam, str(exc)))
+            warnings.warn(f"PP-CBC continuation stopped: {exc}.", ConvergenceWarning,
+                          stacklevel=2)
+            break
         points.append(pt)
         ys.append(y_new)
         if on_point is not None:

@@ -18,7 +18,9 @@ def _target_extra(target: Any) -> dict[str, Any]:
     out: dict[str, Any] = {}
     if isinstance(target, PolarTarget):
         out["target_kind"] = "polar"
-        out["target_scale1"], out["target_scale2"] = target.scale
+        T = target.matrix
+        out["target_T11"], out["target_T12"] = float(T[0, 0]), float(T[0, 1])
+        out["target_T21"], out["target_T22"] = float(T[1, 0]), float(T[1, 1])
         out["target_origin1"], out["target_origin2"] = target.origin
         for i, c in enumerate(target.coefficients):
             out[f"target_c{i}"] = float(c)
@@ -43,8 +45,9 @@ def target_from_extra(extra: dict[str, Any]) -> Any:
         coef.append(float(extra[f"target_c{i}"]))
         i += 1
     if kind == "polar" and coef:
-        return PolarTarget(np.array(coef), scale=(float(extra["target_scale1"]),
-                                                  float(extra["target_scale2"])),
+        T = ((float(extra["target_T11"]), float(extra["target_T12"])),
+             (float(extra["target_T21"]), float(extra["target_T22"])))
+        return PolarTarget(np.array(coef), transform=T,
                            origin=(float(extra["target_origin1"]),
                                    float(extra["target_origin2"])))
     if kind == "elliptic":

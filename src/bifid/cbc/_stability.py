@@ -232,7 +232,7 @@ def augmented_params(
 def orbit_polar_target(
     orbit: np.ndarray, system: System, x1: str, x2: str, n_harmonics: int,
     scale: tuple[float, float] = (1.0, 1.0), origin: tuple[float, float] = (0.0, 0.0),
-    p: np.ndarray | None = None, n_fine: int = 4096,
+    p: np.ndarray | None = None, n_fine: int = 4096, transform=None,
 ) -> PolarTarget:
     """The polar target (eq. 3.22) that is non-invasive on a known orbit.
 
@@ -256,10 +256,10 @@ def orbit_polar_target(
         return fx[:, i]
 
     a, b = sig(x1), sig(x2)
-    xi1 = (a - origin[0]) / scale[0]
-    xi2 = (b - origin[1]) / scale[1]
+    frame = PolarTarget(np.zeros(1), scale=scale, origin=origin, transform=transform)
+    xi1, xi2 = frame.to_xi(a, b)
     coef = polar_project(np.arctan2(xi2, xi1), np.hypot(xi1, xi2), n_harmonics)
-    return PolarTarget(coefficients=coef, scale=scale, origin=origin)
+    return frame.with_coefficients(coef)
 
 
 @functools.lru_cache(maxsize=16)

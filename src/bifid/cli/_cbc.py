@@ -199,7 +199,8 @@ def cbc_cmd(
         probe = VirtualRig(system, overrides, outputs=rig_outputs, sample_rate=fs)
         noise_map = _parse_noise(noise, probe.output_names)
         rig = VirtualRig(system, overrides, outputs=rig_outputs, sample_rate=fs,
-                         noise=noise_map, derivative=derivative, seed=seed)
+                         noise=noise_map, derivative=derivative, seed=seed,
+                         derivative_cutoff=dflt.derivative_cutoff)
         common = dict(system=system, system_name=system_name, rig=rig, dflt=dflt, out=out,
                       resume=resume, overrides=overrides, kp=kp, kd=kd, settle=settle,
                       measure=measure, tol=tol, stability=stability, n_harmonics=n_harmonics,
@@ -246,6 +247,8 @@ def _ppcbc(*, system, system_name, rig, dflt, out, resume, overrides, kp, kd, se
         n_harmonics=n_harmonics or 10, settle_periods=settle or dflt.settle_periods,
         measure_periods=measure or dflt.measure_periods,
     )
+    if dflt.bootstrap_gains is not None and opts_kw["x2"] != f"{opts_kw['x1']}_dot":
+        opts_kw["bootstrap_gains"] = dflt.bootstrap_gains
     if tol is not None:
         opts_kw["tol"] = tol
     if stability is not None:

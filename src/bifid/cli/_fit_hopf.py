@@ -103,13 +103,15 @@ def fit_hopf_cmd(
     width: Annotated[int, typer.Option("--width", help="Hidden width of the map network.")] = 16,
     depth: Annotated[int, typer.Option("--depth", help="Hidden layers of the map network.")] = 2,
     iterations: Annotated[int, typer.Option(
-        "--iterations", help="L-BFGS iterations of the map's second stage.")] = 400,
+        "--iterations", help="L-BFGS iterations of the map's second stage.")] = 600,
     adam: Annotated[int, typer.Option("--adam", help="Adam iterations before L-BFGS.")] = 0,
     regularization: Annotated[str, typer.Option(
         "--regularization", help="L2 weight of the map network: 'cv' or a number.")] = "cv",
     stopping: Annotated[str, typer.Option(
         "--stopping", help="'cv' (early stopping by leave-one-out), 'final' or an iteration "
         "count.")] = "cv",
+    cv_score: Annotated[str, typer.Option(
+        "--cv-score", help="Combine held-out losses by 'median' or 'mean'.")] = "median",
     ensemble: Annotated[int, typer.Option("--ensemble", help="Ensemble members (seeds).")] = 5,
     omega_harmonics: Annotated[int, typer.Option(
         "--omega-harmonics", help="Harmonics of the oscillation speed (eq. 5.10).")] = 6,
@@ -153,6 +155,7 @@ def fit_hopf_cmd(
             n_lbfgs=iterations,
             regularization=_number_or(regularization, "cv", "--regularization"),
             stopping=_stopping(stopping),
+            cv_score=cv_score,
             n_ensemble=ensemble,
             omega_harmonics=omega_harmonics,
             seed=seed,

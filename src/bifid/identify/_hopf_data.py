@@ -192,7 +192,9 @@ def _from_records(records: Sequence[Any], signal_names: Sequence[str] | None) ->
     if len(n_sig) != 1:
         raise BifidInputError(f"All records must have the same number of signals; got {n_sig}.")
     m = n_sig.pop()
-    names = tuple(signal_names) if signal_names is not None else tuple(f"z{k + 1}" for k in range(m))
+    names = (
+        tuple(signal_names) if signal_names is not None else tuple(f"z{k + 1}" for k in range(m))
+    )
     if len(names) != m:
         raise BifidInputError(f"{len(names)} signal names given for {m} signals.")
     return LCOData(

@@ -78,11 +78,12 @@ def diagram_figure(
     meas = None
     if data is not None:
         d = as_lco_data(data)
-        from bifid.identify.hopf_hybrid import _measured_amplitude
         from bifid.identify._hopf_prepare import prepare
+        from bifid.identify.hopf_hybrid import _measured_amplitude
 
         prep = prepare(d, model.plane_, model.map_config_.n_harmonics,
-                       mu_c=model.mu_c_, mu_s=model.mu_s_, z_scale=model.z_scale_)
+                       mu_c=model.mu_c_, mu_s=model.mu_s_, z_scale=model.z_scale_,
+                       white=model.white_)
         meas = (
             d.params,
             d.branch,

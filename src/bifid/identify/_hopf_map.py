@@ -82,7 +82,9 @@ class MapConfig:
 
 
 # ----------------------------------------------------------------------------- network
-def mlp(key: Array, in_size: int, out_size: int, width: int, depth: int, scale: float) -> eqx.Module:
+def mlp(
+    key: Array, in_size: int, out_size: int, width: int, depth: int, scale: float
+) -> eqx.Module:
     """An equinox tanh MLP whose output layer is scaled by ``scale`` (a small correction)."""
     net = eqx.nn.MLP(in_size, out_size, width, depth, activation=jnp.tanh, key=key)
     last = net.layers[-1]
@@ -128,7 +130,7 @@ def alpha_of(a2: float, mode: str) -> float:
 
 # --------------------------------------------------------------------------- the map
 def u12(params, static, u: Array, mu_t: Array) -> Array:
-    r""":math:`\mathbf U_{12}` at one point ``u`` (shape (2,)) and normalised parameter (eq. 5.8)."""
+    r""":math:`\mathbf U_{12}` at one point ``u`` (shape (2,)) and parameter (eq. 5.8)."""
     x = jnp.concatenate([u, mu_t[None]])
     return params["L"] @ x + params["s"] + mlp_apply(params["nn"], static, x)
 

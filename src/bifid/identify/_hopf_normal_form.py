@@ -99,7 +99,8 @@ def growth_derivative(rho2: Array, mu_t: Array, mu0_t: Array, a2: Array, q5: flo
 
 
 def branch_mu(rho2: np.ndarray, mu0_t: float, a2: float, q5: float) -> np.ndarray:
-    r"""The branch as a graph over the radius: :math:`\tilde\mu = \tilde\mu_0 - a_2\rho^2 + q_5\rho^4`."""
+    r"""The branch as a graph over the radius,
+    :math:`\tilde\mu = \tilde\mu_0 - a_2\rho^2 + q_5\rho^4`."""
     return mu0_t - a2 * rho2 + q5 * rho2**2
 
 

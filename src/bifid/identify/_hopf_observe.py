@@ -8,7 +8,8 @@ bifid uses a linear model plus kernel ridge regression of its residual,
 .. math::
 
     \hat z_k(\mathbf x) = \mathbf f(\mathbf x)^{\mathsf T}\boldsymbol\beta_k
-        + \sum_n \alpha_{kn}\,\exp\!\Bigl(-\tfrac12\lVert(\mathbf x - \mathbf x_n)/\ell\rVert^2\Bigr),
+        + \sum_n \alpha_{kn}
+          \exp\!\Bigl(-\tfrac12\lVert(\mathbf x - \mathbf x_n)/\ell\rVert^2\Bigr),
     \qquad \mathbf f = [1, u_1, u_2, \tilde\mu, u_1\tilde\mu, u_2\tilde\mu],
 
 (the linear part carries the near-elliptic, parameter-scaled response and the extrapolation; the

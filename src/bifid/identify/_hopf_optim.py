@@ -79,7 +79,7 @@ def _lbfgs(fun, vg, theta0, saved0, n, memory, offset, stop_at, mask, limit,
     (f0, aux0), g0 = vg(theta0)
 
     def iterate(carry):
-        x, f, g, aux, S, Y, rho, gamma, k, saved, npairs, done = carry
+        x, f, g, _, S, Y, rho, gamma, k, saved, npairs, done = carry
         direction = _two_loop(g, S, Y, rho, gamma)
         slope = jnp.dot(direction, g)
         bad = ~(slope < 0) | ~jnp.all(jnp.isfinite(direction))

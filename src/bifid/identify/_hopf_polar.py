@@ -5,7 +5,8 @@ A closed curve :math:`(z_1, z_2)` is described about its **area centroid**
 
 .. math::
 
-    R = \lVert \mathbf z - \mathbf c\rVert,\quad \theta = \operatorname{atan2}(z_2 - c_2, z_1 - c_1),
+    R = \lVert \mathbf z - \mathbf c\rVert,\quad
+    \theta = \operatorname{atan2}(z_2 - c_2, z_1 - c_1),
     \quad R(\theta) = a_0 + \sum_{k=1}^{n_h} a_k\cos k\theta + b_k \sin k\theta ,
 
 with the coefficients computed in the least-squares sense (the pseudo-inverse variant of
@@ -31,7 +32,8 @@ def fourier_design(theta: Array, n_harmonics: int) -> Array:
 
 
 def parseval_weights(n_harmonics: int) -> Array:
-    r"""Weights making :math:`\sum_j w_j \Delta\Phi_j^2 = \frac1{2\pi}\int_0^{2\pi}\Delta R^2\,d\theta`."""
+    r"""Weights making
+    :math:`\sum_j w_j \Delta\Phi_j^2 = \frac1{2\pi}\int_0^{2\pi}\Delta R^2\,d\theta`."""
     return jnp.concatenate([jnp.ones(1), 0.5 * jnp.ones(2 * n_harmonics)])
 
 

@@ -41,9 +41,14 @@ class Prepared:
     cov: np.ndarray  # (n, 2, 2)
     omega: np.ndarray  # (n,) rad/s, > 0
     direction: float  # +1 counter-clockwise, -1 clockwise in the plane
+    white: np.ndarray  # (2, 2) whitening of the plane (symmetric): working = zn[:, plane] @ white
     zn: list[np.ndarray]  # normalised signals, whole records
     times: list[np.ndarray]  # sample times of zn [s]
     n_whole: np.ndarray  # (n,) samples spanning whole periods (used for the geometry)
+
+    def plane_points(self, i: int, rows=slice(None)) -> np.ndarray:
+        """Working plane coordinates of record ``i`` (normalised, whitened)."""
+        return self.zn[i][rows][:, list(self.plane)] @ self.white
 
     def arrays(self) -> dict[str, jnp.ndarray]:
         """The per-orbit arrays of the map stage (JAX)."""
@@ -63,6 +68,7 @@ def prepare(
     mu_c: float | None = None,
     mu_s: float | None = None,
     z_scale: np.ndarray | None = None,
+    white: np.ndarray | None = None,
 ) -> Prepared:
     """Compute :class:`Prepared` (normalisation constants may be imposed, e.g. for CV folds).
 
@@ -90,11 +96,13 @@ def prepare(
         allsig = np.concatenate(data.signals, axis=0)
         z_scale = np.sqrt(np.mean(allsig**2, axis=0))
         z_scale = np.where(z_scale > 0, z_scale, 1.0)
+    if white is None:
+        white = whitening(data, plane, z_scale)
     coefs, centres, sizes, covs, omegas, dirs, zns, times = [], [], [], [], [], [], [], []
     wholes = []
     for i, sig in enumerate(data.signals):
         zn = sig / z_scale[None, :]
-        pts = zn[:, [i1, i2]]
+        pts = zn[:, [i1, i2]] @ white
         n_whole, turns, direction = whole_periods(pts, pts.mean(axis=0))
         if turns < 1:
             raise BifidInputError(
@@ -103,10 +111,9 @@ def prepare(
             )
         t_all = np.arange(len(zn)) / data.sample_rates[i]
         pts = pts[:n_whole]
-        t = t_all[:n_whole]
         c = np.asarray(polygon_centroid(jnp.asarray(pts)))
         # frequency: time of `turns` whole revolutions about the centroid (interpolated)
-        ang = unwrapped_angle(zn[:, [i1, i2]], c)
+        ang = unwrapped_angle(zn[:, [i1, i2]] @ white, c)
         travel = direction * (ang - ang[0])
         k = int(np.searchsorted(travel, turns * 2 * np.pi))
         k = min(max(k, 1), len(travel) - 1)
@@ -145,30 +152,54 @@ def prepare(
         cov=np.asarray(covs),
         omega=np.asarray(omegas),
         direction=direction,
+        white=np.asarray(white, dtype=float),
         zn=zns,
         times=times,
         n_whole=np.asarray(wholes),
     )
 
 
-def choose_harmonics(
-    data: LCOData, plane: tuple[int, int], n_max: int = 32, tol: float = 1e-3
-) -> int:
-    r"""Smallest number of polar harmonics that represents every orbit to ``tol``.
+def whitening(data: LCOData, plane: tuple[int, int], z_scale: np.ndarray) -> np.ndarray:
+    r"""Symmetric :math:`W = \bar C^{-1/2}` of the mean plane covariance of the records.
 
-    For each orbit the polar series (eq. 5.5) is fitted with ``n_max`` harmonics; the noise
-    floor per coefficient is the median energy of the top quarter of harmonics, and ``n`` is
-    the smallest value for which the energy above ``n`` (less that floor) is below
-    :math:`\mathrm{tol}^2 a_0^2`, i.e. the truncation moves the curve by about
-    ``tol`` of its radius. Returns a value in ``[4, n_max]``.
+    Orbits whose two signals move nearly in phase are thin ellipses, whose polar radius
+    :math:`R(\theta)` needs many harmonics; in whitened coordinates they are close to
+    circles. :math:`W` is symmetric positive definite (orientation is kept) and is undone
+    when predictions are returned.
+    """
+    i1, i2 = plane
+    covs = []
+    for sig in data.signals:
+        pts = sig[:, [i1, i2]] / z_scale[[i1, i2]]
+        d = pts - pts.mean(axis=0)
+        covs.append(d.T @ d / len(d))
+    C = np.mean(covs, axis=0)
+    w, V = np.linalg.eigh(0.5 * (C + C.T))
+    if not np.all(w > 1e-12 * max(float(w.max()), 1e-300)):
+        return np.eye(2)  # degenerate plane: leave it (the prepare step will complain)
+    W = (V / np.sqrt(w)) @ V.T
+    return W / np.sqrt(abs(np.linalg.det(W)))  # unit determinant: only the shape changes
+
+
+def choose_harmonics(
+    data: LCOData, plane: tuple[int, int], n_max: int = 32, tol: float = 2e-3
+) -> int:
+    r"""Number of polar harmonics that represents every orbit: the highest harmonic whose
+    amplitude exceeds ``tol`` of the mean radius :math:`a_0` and four times the noise level
+    (the median amplitude of the top quarter of harmonics).
+
+    Each orbit's polar series (eq. 5.5) is fitted with ``n_max`` harmonics in the whitened
+    plane; harmonics below that threshold (noise, or a truncation error of order ``tol``)
+    are dropped. Returns a value in ``[4, n_max]``.
     """
     i1, i2 = plane
     allsig = np.concatenate(data.signals, axis=0)
     z_scale = np.sqrt(np.mean(allsig**2, axis=0))
     z_scale = np.where(z_scale > 0, z_scale, 1.0)
+    white = whitening(data, plane, z_scale)
     best = 4
     for sig in data.signals:
-        pts = sig[:, [i1, i2]] / z_scale[[i1, i2]]
+        pts = (sig[:, [i1, i2]] / z_scale[[i1, i2]]) @ white
         n_whole, turns, _ = whole_periods(pts, pts.mean(axis=0))
         if turns < 1:
             continue
@@ -178,11 +209,9 @@ def choose_harmonics(
             continue
         c = np.asarray(polygon_centroid(jnp.asarray(pts)))
         coef = np.asarray(polar_coefficients(jnp.asarray(pts), jnp.asarray(c), nmax))
-        energy = 0.5 * (coef[1 : nmax + 1] ** 2 + coef[nmax + 1 :] ** 2)  # per harmonic
-        floor = float(np.median(energy[-max(2, nmax // 4) :]))
-        for n in range(4, nmax + 1):
-            tail = np.sum(np.maximum(energy[n:] - floor, 0.0))
-            if tail <= (tol * coef[0]) ** 2:
-                break
+        amp = np.sqrt(0.5 * (coef[1 : nmax + 1] ** 2 + coef[nmax + 1 :] ** 2))  # per harmonic
+        floor = float(np.median(amp[-max(2, nmax // 4) :]))  # noise level per harmonic
+        above = np.nonzero(amp > max(tol * coef[0], 4.0 * floor))[0]
+        n = int(above[-1]) + 1 if len(above) else 4
         best = max(best, n)
     return int(best)

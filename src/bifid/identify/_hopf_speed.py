@@ -2,30 +2,30 @@ r"""The oscillation speed :math:`\Omega` of the hybrid Hopf model (thesis §5.3.
 
 .. math::
 
-    \dot\theta = \Omega(\rho, \theta, \tilde\mu) = \omega_0 + \omega_s\,
-        \mathrm{NN}_{\Theta_\Omega}(\rho, \tilde\mu)^{\mathsf T}
-        [1, \cos\theta, \dots, \cos n_\Omega\theta, \sin\theta, \dots, \sin n_\Omega\theta]^{\mathsf T}
-    \qquad\text{(eq. 5.10)}
+    \dot\theta = \Omega(\rho, \theta, \tilde\mu),\qquad
+    \Omega = \omega_s\, e^{g}\ \text{(log form, default)}\quad\text{or}\quad
+    \Omega = \omega_s\, g\ \text{(eq. 5.10 as printed)},
 
-(:math:`\omega_s` is a fixed scale, the mean measured frequency, so the network output is
-:math:`O(1)`). Training (eq. 5.13) integrates **only the phase equation** on the model cycle of
-each orbit, :math:`\rho = \rho_i` fixed, from the phase-matched initial condition of eq. 5.12,
-so unstable cycles train without blow-up:
+    g(\theta) = \mathbf c(\rho, \tilde\mu)^{\mathsf T}
+        [1, \cos\theta, \dots, \cos n_\Omega\theta, \sin\theta, \dots, \sin n_\Omega\theta],
+    \qquad \mathbf c = w_0\mathbf e_0 + W_{\rm lin}[\rho, \tilde\mu]^{\mathsf T}
+        + \mathrm{NN}_{\Theta_\Omega}(\rho, \tilde\mu),
+
+with :math:`\omega_s` the mean measured frequency. Training (eq. 5.13) integrates **only the
+phase equation** on the model cycle of each orbit, :math:`\rho = \rho_i` fixed, from the
+phase-matched initial condition of eq. 5.12, so unstable cycles train without blow-up:
 
 .. math::
 
-    \Xi_\Omega = \frac{1}{\sum_i n_i}\sum_i\sum_j
+    \Xi_\Omega = \frac{1}{m_s}\sum_i \frac{1}{n_i}\sum_j
         \lVert\mathbf U_{12}(\rho_i\cos\theta_i(t_j), \rho_i\sin\theta_i(t_j), \tilde\mu_i)
         - \mathbf z_i(t_j)\rVert^2 .
 
-The initial condition solves :math:`\operatorname{ang}(\mathbf U_{12}(\rho_i e^{i\phi}) - \mathbf c_i)
-= \operatorname{ang}(\mathbf z_i(t_1) - \mathbf c_i)` (eq. 5.12) by monotone interpolation on a
-fine grid of :math:`\phi` (the same inversion gives the normal-form phase of every sample, used
-for the other signals and to initialise :math:`\Omega`: the time along the orbit is linear in
-the Fourier coefficients of :math:`1/\Omega(\phi)`,
-:math:`t(\phi) = t_0 + \int^{\phi} \mathrm d\phi'/\Omega`, a linear least-squares problem that
-gives every orbit's speed profile; the network is first fitted to those profiles, then refined
-on :math:`\Xi_\Omega`).
+The initial phase solves eq. 5.12, :math:`\operatorname{ang}(\mathbf U_{12}(\rho_i e^{i\phi})
+- \mathbf c_i) = \operatorname{ang}(\mathbf z_i(t_1) - \mathbf c_i)`, by monotone interpolation
+on a fine grid of :math:`\phi`; the same inversion gives the normal-form phase of every sample.
+Those phases give each orbit's speed profile (:func:`speed_from_phase`); the linear part and
+the network are fitted to the profiles first, then refined on :math:`\Xi_\Omega` by L-BFGS.
 """
 
 from __future__ import annotations
@@ -48,7 +48,7 @@ Array = jnp.ndarray
 
 @dataclass(frozen=True)
 class SpeedConfig:
-    """Static settings of the speed stage (hashable).
+    r"""Static settings of the speed stage (hashable).
 
     Attributes
     ----------
@@ -98,19 +98,20 @@ def log_speed_coefficients(om, static, rho: Array, mu_t: Array, config: SpeedCon
 
 
 def speed_from_coefficients(coef: Array, theta: Array, omega_scale, form: str) -> Array:
-    """:math:`\Omega` at phases ``theta`` from the coefficients of :func:`log_speed_coefficients`."""
+    r""":math:`\Omega` at phases ``theta`` from the coefficients of
+    :func:`log_speed_coefficients`."""
     g = fourier_design(jnp.atleast_1d(theta), (coef.shape[0] - 1) // 2) @ coef
     return omega_scale * (jnp.exp(g) if form == "log" else g)
 
 
 def speed(om, static, rho: Array, theta: Array, mu_t: Array, omega_scale, config: SpeedConfig):
-    """:math:`\Omega(\rho, \theta, \tilde\mu)` of eq. 5.10 at one point (scalar)."""
+    r""":math:`\Omega(\rho, \theta, \tilde\mu)` of eq. 5.10 at one point (scalar)."""
     coef = log_speed_coefficients(om, static, rho, mu_t, config)
     return speed_from_coefficients(coef, theta, omega_scale, config.form)[0]
 
 
 def integrate_phase(om, static, rho, mu_t, theta0, h, n_steps, omega_scale, config):
-    r"""RK4 on :math:`\dot\theta = \Omega(\rho, \theta, \tilde\mu)`; ``theta`` at ``n_steps`` samples.
+    r"""RK4 on :math:`\dot\theta = \Omega(\rho, \theta, \tilde\mu)`; ``theta`` at the samples.
 
     ``h`` is the sample interval; each interval takes ``config.n_sub`` RK4 steps.
     """
@@ -281,7 +282,6 @@ def series_trainer(config: SpeedConfig, n_steps: int):
     """
     static = mlp_static(2, 2 * config.n_harmonics + 1, config.width, config.depth)
     map_static = mlp_static(3, 2, config.map_width, config.map_depth)
-    nh = config.n_harmonics
 
     def run(om, map_params, rho, mu_t, theta0, h, z, mask, lam, omega_scale):
         def residuals(theta):

@@ -14,6 +14,7 @@ from __future__ import annotations
 
 from collections.abc import Sequence
 from dataclasses import dataclass
+from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
@@ -43,7 +44,7 @@ def simulated_records(
     for value in params:
         p = system.param_vector({system.default_param: float(value)})
         x = simulate(system, jnp.asarray(start), jnp.linspace(0.0, transient, 2), p)[-1]
-        ts = np.arange(int(round(duration / dt))) * dt
+        ts = np.arange(round(duration / dt)) * dt
         ys = simulate(system, x, jnp.asarray(ts), p)
         out.append((float(value), ys[:, idx], 1.0 / dt, True))
     return out
@@ -77,11 +78,17 @@ class ContinuationTruth:
     ys: np.ndarray  # (n_points, M*n + 2): mesh values, period, parameter
     n_mesh: int
     p: np.ndarray
+    system: Any = None  # a System object when not a registry name
+
+    def _system(self):
+        from bifid.systems import get_system
+
+        return self.system if self.system is not None else get_system(self.system_name)
 
     @classmethod
     def compute(
         cls,
-        system_name: str = "flutter",
+        system_name: Any = "flutter",
         param: str | None = None,
         *,
         p_range: tuple[float, float] = (10.0, 25.0),
@@ -92,7 +99,7 @@ class ContinuationTruth:
         from bifid.continuation import ContinuationOptions, equilibria, hopf_orbits
         from bifid.systems import get_system
 
-        system = get_system(system_name)
+        system = get_system(system_name) if isinstance(system_name, str) else system_name
         param = param or system.default_param
         lo, hi = p_range
         eq = equilibria(
@@ -109,7 +116,7 @@ class ContinuationTruth:
         )
         folds = [sp.param for sp in br.special_points if sp.kind == "cycle_fold"]
         return cls(
-            system_name=system_name,
+            system_name=system.name,
             param=param,
             hopf_param=float(hp.param),
             hopf_omega=float(hp.data["omega"]),
@@ -120,6 +127,7 @@ class ContinuationTruth:
                                 np.asarray(br.params)]),
             n_mesh=int(br.meta.get("n_mesh", n_mesh)),
             p=np.asarray(hp.data["p"]),
+            system=None if isinstance(system_name, str) else system,
         )
 
     def orbit(self, value: float, stable: bool) -> tuple[np.ndarray, float]:
@@ -134,9 +142,8 @@ class ContinuationTruth:
         """
         from bifid.continuation import correct, orbit_problem
         from bifid.continuation._fourier import fourier_differentiation_matrix
-        from bifid.systems import get_system
 
-        system = get_system(self.system_name)
+        system = self._system()
         M, n = self.n_mesh, system.n_states
         seg = np.nonzero(self.stable == stable)[0]
         best = None
@@ -172,9 +179,7 @@ class ContinuationTruth:
 
     def amplitude(self, value: float, stable: bool, states: Sequence[str]) -> np.ndarray:
         """``max_t |x_s(t)|`` of ``states`` on the exact cycle (fine trigonometric grid)."""
-        from bifid.systems import get_system
-
-        system = get_system(self.system_name)
+        system = self._system()
         V, _ = self.orbit(value, stable)
         x = _trig_eval(V, np.linspace(0, 2 * np.pi, 4096, endpoint=False))
         return np.max(np.abs(x[:, [system.state_index(s) for s in states]]), axis=0)
@@ -196,12 +201,10 @@ class ContinuationTruth:
     ) -> list[tuple]:
         """Cycles sampled as records; ``noise`` is Gaussian with standard deviation
         ``noise × RMS`` of each signal over all records (absolute, as a sensor's)."""
-        from bifid.systems import get_system
-
-        system = get_system(self.system_name)
+        system = self._system()
         idx = [system.state_index(s) for s in states]
         rng = np.random.default_rng(seed)
-        t = np.arange(int(round(duration * sample_rate))) / sample_rate
+        t = np.arange(round(duration * sample_rate)) / sample_rate
         out = []
         for values, stable in ((stable_params, True), (unstable_params, False)):
             for v in values:

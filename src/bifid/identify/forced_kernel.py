@@ -66,6 +66,7 @@ samples at the same ρ, backbone samples at the same ρ. The band is the central
 
 from __future__ import annotations
 
+import functools
 import math
 import os
 import warnings
@@ -549,6 +550,20 @@ def _pad_call(fn, *arrays, axis_out: int = 0, chunked: bool = True):
     return jax.tree_util.tree_map(cat, *outs)
 
 
+@functools.lru_cache(maxsize=16)
+def _kappa_objective(basis):
+    """Jitted value and gradient of ``−log p(e | κ, θ)`` (module docstring), once per basis."""
+
+    def f(z, xp, om_p, e_p, ys, xs, xc, evp, mask, log_k0):
+        th, lk = z[:-1], z[-1]
+        y = (om_p + jnp.exp(lk) * e_p) / ys * mask
+        n = jnp.sum(mask)
+        return (neg_log_marginal_likelihood(th, xp, y, xs, xc, basis, evp, mask)
+                - n * (lk - log_k0))
+
+    return jax.jit(jax.value_and_grad(f))
+
+
 class ForcedKernelModel:
     """Reduced dynamics ``a(ρ, Ω)``, ``b(ρ, Ω)`` on a forced SSM, learned from forced responses.
 
@@ -859,17 +874,12 @@ class ForcedKernelModel:
                                                prep["x_scale"], prep["x_center"])
         om_p = jnp.zeros(xp.shape[0]).at[:n].set(om - omega_c)
         e_p = jnp.zeros(xp.shape[0]).at[:n].set(e)
-        basis = gp_b.basis
         log_k0 = math.log(k0)
+        kernel = _kappa_objective(gp_b.basis)
+        consts = (xp, om_p, e_p, jnp.asarray(ys), xs, xc, evp, mask, jnp.asarray(log_k0))
 
-        @jax.jit
         def vg(z):
-            def f(z):
-                th, lk = z[:-1], z[-1]
-                y = (om_p + jnp.exp(lk) * e_p) / ys * mask
-                return (neg_log_marginal_likelihood(th, xp, y, xs, xc, basis, evp, mask)
-                        - n * (lk - log_k0))
-            return jax.value_and_grad(f)(z)
+            return kernel(jnp.asarray(z), *consts)
 
         z0 = np.concatenate([prep["theta0"], [log_k0]])
         lo = np.concatenate([prep["lo"], [log_k0 - math.log(100.0)]])

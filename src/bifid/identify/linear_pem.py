@@ -22,7 +22,7 @@ offsets ``y0`` of the outputs. They minimise the output (simulation) error of eq
 
 .. math::
 
-    V(\\theta) = \\sum_c \\frac{1}{\\sigma_c^2}\\sum_k \\bigl(y_c(k) - \\hat y_c(k|\\theta)\\bigr)^2,
+    V(\\theta) = \\sum_c \\sigma_c^{-2}\\sum_k \\bigl(y_c(k) - \\hat y_c(k|\\theta)\\bigr)^2,
 
 with per-output weights :math:`\\sigma_c` re-estimated from the residuals after a first pass
 (for independent Gaussian output noise this is the maximum-likelihood criterion, which is
@@ -34,8 +34,9 @@ exact Jacobian :math:`\\partial\\varepsilon/\\partial\\theta` from ``jax.jacfwd`
 whose residuals are coloured by model error.
 
 Parameters can be *tied*: ``ratios={"ka": "Ia"}`` keeps ``ka / Ia`` at its starting value,
-which is how the thesis keeps a natural frequency :math:`\\omega_\\alpha=\\sqrt{k_\\alpha/I_\\alpha}`
-measured by a shaker test fixed while :math:`I_\\alpha` is identified (Table 4.1:
+which is how the thesis keeps a natural frequency
+:math:`\\omega_\\alpha=\\sqrt{k_\\alpha/I_\\alpha}` measured by a shaker test fixed while
+:math:`I_\\alpha` is identified (Table 4.1:
 :math:`k_\\alpha = \\omega_\\alpha^2 I_\\alpha`).
 """
 
@@ -112,7 +113,7 @@ def n_squarings_for(M: np.ndarray) -> int:
 
 
 def discrete_outputs(A_d: Array, C: Array, z0: Array, n_samples: int) -> Array:
-    """Outputs :math:`C A_d^k z_0`, ``k = 0 .. n_samples-1`` (eq. 4.7), shape ``(n_samples, n_out)``."""
+    """Outputs :math:`C A_d^k z_0`, ``k = 0 .. n_samples-1`` (eq. 4.7), ``(n_samples, n_out)``."""
 
     def step(z, _):
         return A_d @ z, C @ z
@@ -272,7 +273,9 @@ class LinearPEM:
 
     def _check_fitted(self) -> None:
         if not hasattr(self, "p_"):
-            raise NotFittedError("This LinearPEM is not fitted yet; call fit(y, sample_rate) first.")
+            raise NotFittedError(
+                "This LinearPEM is not fitted yet; call fit(y, sample_rate) first."
+            )
 
     # ---------------------------------------------------------------------- fit
     def fit(
@@ -353,7 +356,9 @@ class LinearPEM:
             if n not in self.free:
                 raise BifidInputError(f"log_params name {n!r} is not in free {self.free}.")
             if not p0[sys_.index(n)] > 0:
-                raise BifidInputError(f"{n!r} is searched in log space but starts at {p0[sys_.index(n)]}.")
+                raise BifidInputError(
+                    f"{n!r} is searched in log space but starts at {p0[sys_.index(n)]}."
+                )
         log_mask = tuple(n in log_names for n in self.free)
 
         x_eq = jnp.zeros(sys_.n_states) if self.x_eq is None else jnp.asarray(self.x_eq)
@@ -435,7 +440,7 @@ class LinearPEM:
         w_out = 1.0 / np.maximum(yd.std(axis=0), 1e-300)
         sol, nfev, theta = None, 0, theta0
         for frac in self.horizons:
-            mask = (np.arange(n) < max(10, int(round(frac * n)))).astype(float)
+            mask = (np.arange(n) < max(10, round(frac * n))).astype(float)
             sol = run(theta, mask[:, None] * w_out[None, :])
             nfev += int(sol.nfev)
             theta = sol.x
@@ -491,7 +496,8 @@ class LinearPEM:
         self.A_ = np.asarray(state_matrix(sys_, p_fit, x_eq))
         self.eigenvalues_ = np.linalg.eigvals(self.A_)
         err = yd - yhat
-        self.rmse_ = {o: float(np.sqrt(np.mean(err[:, c] ** 2))) for c, o in enumerate(self.outputs)}
+        self.rmse_ = {o: float(np.sqrt(np.mean(err[:, c] ** 2)))
+                      for c, o in enumerate(self.outputs)}
         self.fit_percent_ = {
             o: float(
                 100.0 * (1 - np.linalg.norm(err[:, c]) / np.linalg.norm(yd[:, c] - yd[:, c].mean()))

@@ -82,6 +82,8 @@ __all__ = [
     "OrbitSet",
     "fit_near_hopf",
     "levenberg_marquardt",
+    "plot_diagram",
+    "release_index",
     "whole_diagram_update",
 ]
 
@@ -432,7 +434,9 @@ def fit_near_hopf(
             reg = flutter_speed_regression(data.param, data.column(output))
             lam_ref = float(reg["param"])
         else:
-            raise BifidInputError(f"param_ref must be 'model', 'data' or a number, got {param_ref!r}.")
+            raise BifidInputError(
+                f"param_ref must be 'model', 'data' or a number, got {param_ref!r}."
+            )
     else:
         lam_ref = float(param_ref)
     U = data.param
@@ -524,7 +528,8 @@ def fit_near_hopf(
     return NearHopfResult(
         params={n: float(p_fit[i]) for n, i in zip(free, idx, strict=True)},
         p=p_fit, alpha2=float(a2), normal_form=nf, param_ref=float(lam_ref), output=output,
-        rms=rms, singular_values=sv_full, identifiable=dict(zip(free, map(float, ident), strict=True)),
+        rms=rms, singular_values=sv_full,
+        identifiable=dict(zip(free, map(float, ident), strict=True)),
         unidentifiable=dict(zip(free, map(float, null), strict=True)), statement=statement, lm=lm,
         structure=structure,
     )
@@ -1164,6 +1169,12 @@ class MechanisticModel:
         Iterations of stages 2 and 3.
     hopf_guess : float, optional
         Where to start looking for the Hopf point (default: the largest measured parameter).
+    decay_start : "release" or float
+        Start of the free decay used by the linear stage: "release" (the latest of the
+        outputs' largest excursions, :func:`release_index`: before it the rig is still
+        being excited) or a time in seconds.
+    decay_stop : float, optional
+        End of the free decay used [s] (default: the end of the record).
     """
 
     def __init__(
@@ -1185,6 +1196,8 @@ class MechanisticModel:
         gradient: str = "implicit",
         max_iter: int = 40,
         hopf_guess: float | None = None,
+        decay_start: str | float = "release",
+        decay_stop: float | None = None,
     ) -> None:
         self.system = system
         self.free = tuple(free)
@@ -1202,6 +1215,8 @@ class MechanisticModel:
         self.gradient = gradient
         self.max_iter = max_iter
         self.hopf_guess = hopf_guess
+        self.decay_start = decay_start
+        self.decay_stop = decay_stop
 
     # -------------------------------------------------------------- helpers
     def get_params(self) -> dict[str, Any]:
@@ -1214,6 +1229,7 @@ class MechanisticModel:
             "linear_param_value": self.linear_param_value, "param_ref": self.param_ref,
             "near_hopf": self.near_hopf, "n_mesh": self.n_mesh, "gradient": self.gradient,
             "max_iter": self.max_iter, "hopf_guess": self.hopf_guess,
+            "decay_start": self.decay_start, "decay_stop": self.decay_stop,
         }
 
     def _validate(self) -> System:
@@ -1271,9 +1287,10 @@ class MechanisticModel:
             data.column(o)
         param = self.param or data.param_name or sys_.default_param
         sys_.index(param)
-        p = np.asarray(sys_.param_vector(self.params), dtype=float)
+        p = np.array(sys_.param_vector(self.params), dtype=float)
         self.stages_: dict[str, Any] = {}
         self.params_: dict[str, float] = {}
+        self.stage_p_: dict[str, np.ndarray] = {}
         hopf_guess = self.hopf_guess if self.hopf_guess is not None else float(np.max(data.param))
         out0 = self.outputs[0]
         unstable = data.stable == 0
@@ -1290,6 +1307,16 @@ class MechanisticModel:
             if free_decay is None:
                 raise BifidInputError("the linear stage needs a free decay (free_decay=...).")
             y, fs = _free_decay_arrays(free_decay)
+            if self.decay_start == "release":
+                i0 = release_index(y)
+            else:
+                i0 = round(float(self.decay_start) * fs)
+            i1 = y.shape[0] if self.decay_stop is None else round(self.decay_stop * fs)
+            if not 0 <= i0 < i1 - 20:
+                raise BifidInputError(
+                    f"the free-decay window [{i0 / fs:g}, {i1 / fs:g}] s is empty or too short."
+                )
+            y = y[i0:i1]
             start = {**{k: float(v) for k, v in sys_.param_dict(p).items()},
                      param: self.linear_param_value}
             opts = {"decimate": 10, **self.linear_options}
@@ -1303,8 +1330,10 @@ class MechanisticModel:
             self.linear_ = pem
             self.params_.update({nm: float(p[sys_.index(nm)]) for nm in self.linear_free})
             self.stages_["linear"] = {"parameters": dict(pem.params_), "stderr": pem.stderr_,
+                                      "window_s": [i0 / fs, i1 / fs],
                                       "tied": pem.tied_, "fit_percent": pem.fit_percent_,
                                       "rmse": pem.rmse_, "modes": pem.modal_summary()}
+            self.stage_p_["linear"] = p.copy()
         nf = hopf_normal_form(sys_, param, p=jnp.asarray(p), guess=hopf_guess)
         hopf_guess = nf.param_value
         if "linear" in self.stages:
@@ -1324,6 +1353,7 @@ class MechanisticModel:
             res2 = fit_near_hopf(sys_, p, self.free, data.select(sel), output=out0, param=param,
                                  nf=nf, param_ref=self.param_ref, max_iter=self.max_iter)
             p = res2.p.copy()
+            self.stage_p_["normal_form"] = p.copy()
             self.identifiability_ = {
                 "statement": res2.statement,
                 "identifiable_direction": res2.identifiable,
@@ -1342,14 +1372,23 @@ class MechanisticModel:
                                         gradient=self.gradient, max_iter=self.max_iter,
                                         hopf_guess=hopf_guess)
             p = res3.p.copy()
-            self.stages_["whole_diagram"] = {**res3.to_dict(),
-                                             "rms_all": res3.rms, "n_lcos": len(data)}
+            self.stage_p_["whole_diagram"] = p.copy()
+            self.stages_["whole_diagram"] = {**res3.to_dict(), "rms_all": res3.rms,
+                                             "n_matched": len(data), "n_lcos": len(data),
+                                             "predicted_amplitudes": res3.amplitudes[:, 0].tolist()}
             self.whole_diagram_ = res3
         self.params_.update({nm: float(p[sys_.index(nm)]) for nm in self.free})
         self.p_ = p
         nf = hopf_normal_form(sys_, param, p=jnp.asarray(p), guess=hopf_guess)
         self.normal_form_ = nf
         self.hopf_ = _hopf_summary(nf)
+        final = self._diagram_error(sys_, p, param, data, nf.param_value)
+        self.cycle_fold_ = final.get("cycle_fold")
+        last = self.stages[-1]
+        if last != "whole_diagram":
+            self.stages_.setdefault(last, {}).update(
+                {k: v for k, v in final.items() if k not in self.stages_.get(last, {})})
+        self.stages_[last]["cycle_fold"] = self.cycle_fold_
         self.param_ = param
         self.data_ = data
         self.n_features_in_ = len(self.outputs)
@@ -1357,19 +1396,31 @@ class MechanisticModel:
 
     def _diagram_error(self, sys_: System, p: np.ndarray, param: str, data: LCOData,
                        hopf_guess: float) -> dict[str, Any]:
-        """RMS amplitude error of the model's diagram at every measured LCO (fixed params)."""
-        try:
-            br = model_branch(sys_, p, param, n_mesh=self.n_mesh, guess=hopf_guess,
-                              param_range=_default_range(data))
-            orbits = OrbitSet(sys_, param, self.n_mesh, self.outputs)
-            orbits.match(br, data, p)
-        except ConvergenceError as exc:
-            return {"rms_all": None, "diagram_error": str(exc)}
-        amps = orbits.amplitudes()
-        meas = np.column_stack([data.column(o) for o in self.outputs])
+        """RMS amplitude error of the model's diagram at the measured LCOs (fixed parameters).
+
+        LCOs the model has no orbit for (e.g. a stable LCO below the model's cycle fold)
+        are listed in ``missing`` and left out of ``rms_all`` (``n_matched`` says how many
+        entered it).
+        """
+        br = model_branch(sys_, p, param, n_mesh=self.n_mesh, guess=hopf_guess,
+                          param_range=_default_range(data))
         folds = [sp.param for sp in br.special_points if sp.kind == "cycle_fold"]
+        orbits = OrbitSet(sys_, param, self.n_mesh, self.outputs)
+        try:
+            matched = orbits.match(br, data, p, skip_missing=True)
+        except ConvergenceError as exc:
+            return {"rms_all": None, "n_matched": 0, "diagram_error": str(exc),
+                    "cycle_fold": folds[0] if folds else None}
+        amps = orbits.amplitudes()
+        meas = np.column_stack([data.column(o) for o in self.outputs])[matched]
+        missing = np.setdiff1d(np.arange(len(data)), matched)
+        pred = np.full(len(data), np.nan)
+        pred[matched] = amps[:, 0]
         return {"rms_all": float(np.sqrt(np.mean((amps - meas) ** 2))),
-                "predicted_amplitudes": amps[:, 0].tolist(),
+                "n_matched": len(matched),
+                "missing": [{"param": float(data.param[i]), "stable": int(data.stable[i])}
+                            for i in missing],
+                "predicted_amplitudes": [None if np.isnan(v) else float(v) for v in pred],
                 "cycle_fold": folds[0] if folds else None}
 
     # -------------------------------------------------------------- predict
@@ -1411,6 +1462,7 @@ class MechanisticModel:
             "data_flutter": self.data_flutter_,
             "stages": self.stages_,
             "identifiability": getattr(self, "identifiability_", None),
+            "cycle_fold": getattr(self, "cycle_fold_", None),
             "losses": {k: v.get("rms_all") for k, v in self.stages_.items()},
         }
 
@@ -1426,7 +1478,8 @@ class MechanisticModel:
             {**self.summary(), "param": self.param_,
              "all_parameters": sys_.param_dict(self.p_)},
             {"p": self.p_, "data_param": d.param, "data_amplitude": d.amplitude,
-             "data_stable": d.stable, "data_frequency": d.frequency},
+             "data_stable": d.stable, "data_frequency": d.frequency,
+             **{f"p_stage_{k}": v for k, v in getattr(self, "stage_p_", {}).items()}},
             self.get_params(),
         )
 
@@ -1451,9 +1504,12 @@ class MechanisticModel:
         if pr.get("identifiability") is not None:
             model.identifiability_ = pr["identifiability"]
         model.param_ = pr["param"]
+        model.cycle_fold_ = pr.get("cycle_fold")
         model.data_ = LCOData(arrays["data_param"], arrays["data_amplitude"],
                               arrays["data_stable"], tuple(model.outputs),
                               arrays["data_frequency"], model.param_)
+        model.stage_p_ = {k[len("p_stage_"):]: np.asarray(v, dtype=float)
+                          for k, v in arrays.items() if k.startswith("p_stage_")}
         model.n_features_in_ = len(model.outputs)
         return model
 
@@ -1489,3 +1545,80 @@ def release_index(y: np.ndarray) -> int:
         y = y[:, None]
     rest = np.median(y[-max(1, y.shape[0] // 4):], axis=0)
     return int(max(int(np.argmax(np.abs(y[:, c] - rest[c]))) for c in range(y.shape[1])))
+
+
+def plot_diagram(
+    branches: Sequence[Any],
+    data: LCOData | None,
+    path: str | Path,
+    *,
+    output: str = "h",
+    title: str = "",
+    label: str = "model",
+    others: Sequence[Mapping[str, Any]] = (),
+    scale: float = 1.0,
+    unit: str = "m",
+) -> Path:
+    """Bifurcation diagram of LCO branches with measured LCOs (PNG/SVG, matplotlib Agg).
+
+    Parameters
+    ----------
+    branches : sequence of Branch
+        Periodic-orbit branches (solid where stable, dashed where unstable).
+    data : LCOData, optional
+        Measured LCOs: filled markers stable, open markers unstable.
+    path : str or Path
+        Output file (written atomically).
+    output : str
+        State whose amplitude is shown.
+    others : sequence of mappings
+        Extra curves: ``{"param": ..., "amplitude": ..., "label": ..., "style": "--"}``
+        (e.g. other stages or the thesis's curves).
+    scale, unit : float, str
+        Amplitudes are multiplied by ``scale`` and labelled with ``unit``.
+    """
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    from bifid.io import atomic_path
+
+    fig, ax = plt.subplots(figsize=(7.5, 4.8), constrained_layout=True)
+    first = True
+    for br in branches:
+        states = list(br.meta.get("states", []))
+        col = states.index(output) if output in states else 0
+        x = np.asarray(br.params)
+        y = np.asarray(br.data["amplitude"])[:, col] * scale
+        st = np.asarray(br.stable, dtype=bool)
+        for mask, ls in ((st, "-"), (~st, "--")):
+            # extend each segment by one point so the curve is continuous
+            edge = np.zeros_like(mask)
+            edge[:-1] |= mask[1:] & ~mask[:-1]
+            edge[1:] |= mask[:-1] & ~mask[1:]
+            yy = np.where(mask | edge, y, np.nan)
+            ax.plot(x, yy, ls, color="C0", lw=2,
+                    label=(f"{label} (stable / unstable)" if first and ls == "-" else None))
+        first = False
+    for k, o in enumerate(others):
+        ax.plot(np.asarray(o["param"]), np.asarray(o["amplitude"]) * scale,
+                o.get("style", "-"), color=o.get("color", f"C{k + 2}"), lw=1.5,
+                label=o.get("label"))
+    if data is not None:
+        a = data.column(output) * scale
+        s = data.stable == 1
+        u = data.stable == 0
+        ax.plot(data.param[s], a[s], "o", color="k", ms=7, label="measured stable LCO")
+        ax.plot(data.param[u], a[u], "o", mfc="white", mec="k", ms=7,
+                label="measured unstable LCO")
+    ax.set_xlabel(data.param_name if data is not None else "parameter")
+    ax.set_ylabel(f"{output} amplitude max|x| [{unit}]")
+    ax.set_title(title)
+    ax.grid(alpha=0.3)
+    ax.legend(fontsize=8, loc="best")
+    path = Path(path)
+    with atomic_path(path) as tmp:
+        fig.savefig(tmp, dpi=120, format=path.suffix.lstrip(".") or "png")
+    plt.close(fig)
+    return path

@@ -410,7 +410,8 @@ def hopf_normal_form(
     )
     if abs(nf.alpha1) < 1e-14 or abs(nf.alpha2) < 1e-300:
         raise ConvergenceError(
-            f"Degenerate Hopf point of {sys_.name!r} at {param}={lam_h:.8g}: alpha1={nf.alpha1:.3g}, "
+            f"Degenerate Hopf point of {sys_.name!r} at {param}={lam_h:.8g}: "
+            f"alpha1={nf.alpha1:.3g}, "
             f"Re c1={nf.alpha2:.3g}; the cubic normal form does not decide the cycles."
         )
     return nf

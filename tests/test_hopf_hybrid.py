@@ -36,9 +36,6 @@ FAST = dict(
     regularization=1e-6,
     stopping="final",
     omega_harmonics=2,
-    omega_width=8,
-    omega_fit_iterations=150,
-    omega_iterations=30,
     omega_regularization=1e-4,
 )
 
@@ -95,13 +92,15 @@ def test_amplitudes_and_frequency_at_untrained_parameters(model, mu, stable):
     """Check amplitudes of all three signals (incl. the regressed one) and the frequency."""
     branch = "stable" if stable else "unstable"
     pred = model.predict_amplitude([mu], branch)[0]
-    np.testing.assert_allclose(pred, amplitude(mu, stable), rtol=0.01)
+    truth = amplitude(mu, stable)
+    np.testing.assert_allclose(pred[:2], truth[:2], rtol=0.005)  # the plane: U_12
+    np.testing.assert_allclose(pred[2], truth[2], rtol=0.02)  # regressed signal: U_3
     assert model.predict_frequency([mu], branch)[0] == pytest.approx(OMEGA, rel=2e-3)
 
 
 def test_no_cycle_where_the_model_has_none(model):
     """Check that asking for a cycle below the fold is an input error naming the fold."""
-    with pytest.raises(BifidInputError, match="no stable limit cycle.*fold"):
+    with pytest.raises(BifidInputError, match=r"no stable limit cycle.*fold"):
         model.predict_amplitude([0.5], "stable")
     with pytest.raises(BifidInputError, match="no unstable limit cycle"):
         model.predict_amplitude([1.1], "unstable")
@@ -190,7 +189,7 @@ def test_input_errors(kwargs, data, match):
     elif data == "short":
         recs = [(mu, s[:20], fs, st) for mu, s, fs, st in recs]
     elif data == "bad":
-        recs = [(recs[0][0], recs[0][1][:, 0], 100.0, True)] + recs[1:]
+        recs = [(recs[0][0], recs[0][1][:, 0], 100.0, True), *recs[1:]]
     with pytest.raises(BifidInputError, match=match):
         HopfHybridModel(**{**FAST, **kwargs}).fit(recs, signal_names=NAMES)
 
@@ -201,12 +200,11 @@ def test_cross_validation_selects_and_reports():
                            "stopping": "cv", "n_ensemble": 1})
     m.fit(records(noise=0.002, seed=1), signal_names=NAMES)
     assert m.regularization_ in (1e-6, 1e-2)
-    assert 0 <= m.n_iterations_ <= FAST["n_lbfgs"]
+    assert 1 <= m.n_iterations_ <= FAST["n_lbfgs"]
     assert len(m.cv_["held_out"]) == len(STABLE) + len(UNSTABLE)
-    # the strong penalty flattens the network, so it cannot win on data in the model class
-    # by much; either way the selected score is the grid's best
-    assert m.cv_["best_score"] == pytest.approx(np.min([min(r) for r in m.cv_["score"]]),
-                                                rel=0.5)
+    # the selected pair is the grid's best median held-out loss at a 10 % checkpoint
+    assert m.cv_["aggregate"] == "median"
+    assert m.cv_["best_score"] == pytest.approx(np.median(m.cv_["held_out"]))
     report = m.cross_validate(records(noise=0.002, seed=1), signal_names=NAMES)
     folds = report["folds"]
     assert len(folds) == len(STABLE) + len(UNSTABLE)

