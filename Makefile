@@ -6,7 +6,7 @@ STAMP := $(VENV)/.installed
 export JAX_PLATFORMS ?= cpu
 export JAX_ENABLE_X64 := 1
 
-.PHONY: install demo test test-slow bench docs lint clean
+.PHONY: install demo demo-forced check-report test test-slow bench docs lint clean
 
 $(STAMP): pyproject.toml
 	test -d $(VENV) || $(PY) -m venv $(VENV)
@@ -18,6 +18,15 @@ install: $(STAMP)
 
 demo: $(STAMP)
 	$(BIN)/bifid demo flutter --out out
+
+demo-forced: $(STAMP)
+	$(BIN)/bifid demo forced --out out-forced
+
+# render the demo report in headless Chromium (Debian package `chromium`) and check that
+# every figure shows; installs chromium with apt when it is missing and we may
+check-report: $(STAMP)
+	command -v chromium >/dev/null 2>&1 || { [ "$$(id -u)" = 0 ] && apt-get install -y -qq chromium; } || true
+	$(BIN)/python scripts/check_report.py out/report.html --screenshot out/report_screenshot.png
 
 test: $(STAMP)
 	$(BIN)/python -m pytest -q tests

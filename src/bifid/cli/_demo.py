@@ -1,19 +1,15 @@
 """``bifid demo flutter|forced --out DIR``: the main job on a built-in virtual experiment.
 
-Until the end-to-end pipeline lands (CBC → identification → prediction, issue 7) the
-flutter demo computes the continuation ground truth of the flutter model: equilibria,
-the subcritical Hopf point, the periodic-orbit branch with its fold, stability, and a
-bifurcation diagram, written to ``DIR``.
+The work is in :mod:`bifid.demo`; this module parses options, prints the JSON summary of
+the contract and turns failures into one-line errors.
 """
 
 from __future__ import annotations
 
 import json
-import time
 from pathlib import Path
 from typing import Annotated
 
-import numpy as np
 import typer
 
 from bifid.cli._common import app, emit_json, run_info, user_errors
@@ -24,65 +20,48 @@ from bifid.errors import BifidInputError
 def demo_cmd(
     which: Annotated[str, typer.Argument(help="flutter or forced")] = "flutter",
     out: Annotated[Path, typer.Option("--out", help="Output directory.")] = Path("out"),
-    json_out: Annotated[bool, typer.Option("--json")] = False,
+    refresh: Annotated[bool, typer.Option(
+        "--refresh", help="Recompute every stage (default: reuse those whose settings "
+        "did not change).")] = False,
+    seed: Annotated[int, typer.Option("--seed", help="Seed of noise and training.")] = 0,
+    noise: Annotated[float, typer.Option(
+        "--noise", help="Measurement noise, fraction of each channel's amplitude.")] = 0.01,
+    json_out: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", help="No progress display.")] = False,
 ) -> None:
-    """Run the demonstration and write its figures and summary into DIR."""
+    """Run a whole virtual experiment, identify a model, compare with the truth.
+
+    Writes DIR/report.html, the figures, the dataset and the model.
+    """
     with user_errors():
         if which not in ("flutter", "forced"):
             raise BifidInputError(f"demo must be 'flutter' or 'forced', got {which!r}.")
+        if not (0.0 <= noise < 0.5):
+            raise BifidInputError(f"--noise must be in [0, 0.5), got {noise!r}.")
+        if out.exists() and not out.is_dir():
+            raise BifidInputError(f"--out {out} exists and is not a directory.")
         out.mkdir(parents=True, exist_ok=True)
-        t0 = time.time()
-        summary = _flutter(out) if which == "flutter" else _forced(out)
-        summary["wall_time_s"] = time.time() - t0
-        payload = {"summary": summary, "settings": run_info("demo", which=which, out=str(out))}
-        from bifid.io import atomic_write_text
+        settings = run_info("demo", which=which, out=str(out), seed=seed, noise=noise,
+                            refresh=refresh)
+        if which == "flutter":
+            from bifid.demo import FlutterDemoSettings, run_flutter_demo
 
-        atomic_write_text(out / "summary.json", json.dumps(payload, indent=2, default=float))
+            cfg = FlutterDemoSettings(seed=seed, noise_fraction=noise,
+                                      model={"n_ensemble": 3, "seed": seed})
+            summary = run_flutter_demo(out, cfg, refresh=refresh, progress=not quiet)
+        else:
+            from bifid.demo import ForcedDemoSettings, run_forced_demo
+
+            cfg = ForcedDemoSettings(seed=seed, noise_fraction=noise)
+            summary = run_forced_demo(out, cfg, refresh=refresh, progress=not quiet)
+        payload = {"summary": summary, "report": str(out / "report.html"), "settings": settings}
+        from bifid.io import atomic_write_text, jsonable
+
+        atomic_write_text(out / "summary.json", json.dumps(jsonable(payload), indent=2))
         if json_out:
             emit_json(payload)
         else:
-            print(json.dumps(summary, indent=2, default=float))
-
-
-def _flutter(out: Path) -> dict:
-    from bifid.continuation import continue_from_hopf
-    from bifid.report.plots import bifurcation_diagram, save_figure
-    from bifid.systems import get_system
-
-    s = get_system("flutter")
-    eq, branches = continue_from_hopf(s, "U", 14.0, 20.0, n_mesh=64)
-    (h,) = eq.special("hopf")
-    (br,) = branches
-    folds = br.special("cycle_fold")
-    fig = bifurcation_diagram(eq, branches, ["h", "alpha"], title="flutter model (App. A)",
-                              units={"h": "m", "alpha": "rad"}, param_unit="m/s")
-    save_figure(fig, out / "flutter_bifurcation.png")
-    return {
-        "system": "flutter",
-        "hopf": {"U": h.param, "omega": h.data["omega"],
-                 "frequency_hz": h.data["omega"] / 2 / np.pi,
-                 "lyapunov": h.data["lyapunov"], "criticality": h.data["criticality"]},
-        "cycle_folds": [{"U": f.param, "amplitude_h": f.data["amplitude"][0],
-                         "amplitude_alpha": f.data["amplitude"][2]} for f in folds],
-        "n_orbits": len(br),
-        "figures": ["flutter_bifurcation.png"],
-    }
-
-
-def _forced(out: Path) -> dict:
-    from bifid.continuation import backbone, frc
-    from bifid.report.plots import forced_diagram, save_figure
-    from bifid.systems import get_system
-
-    s = get_system("shaw_pierre")
-    branches = [frc(s, F, (0.95, 1.06)) for F in (0.003, 0.006, 0.009)]
-    bb = backbone(s, (0.05, max(b.data["observed_amplitude"].max() for b in branches)))
-    save_figure(forced_diagram(branches, xkey="omega", title="shaw_pierre FRCs", backbone=bb),
-                out / "shaw_pierre_frc.png")
-    return {
-        "system": "shaw_pierre",
-        "frcs": [{"F": float(b.data["forcing"][0]),
-                  "peak_amplitude": float(b.data["observed_amplitude"].max()),
-                  "folds": [f.param for f in b.special("fold")]} for b in branches],
-        "figures": ["shaw_pierre_frc.png"],
-    }
+            checks = summary.get("checks", {})
+            print(f"bifid demo {which}: report {out / 'report.html'} "
+                  f"({sum(c['passed'] for c in checks.values())}/{len(checks)} checks pass, "
+                  f"{summary.get('wall_time_s', 0):.0f} s)")

@@ -1,0 +1,320 @@
+"""Comparison with the truth, figures and ``report.html`` of the flutter demo."""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+from typing import Any
+
+import matplotlib
+
+matplotlib.use("Agg")
+import matplotlib.pyplot as plt
+import numpy as np
+
+from bifid.errors import BifidError
+from bifid.report.plots import STABLE, UNSTABLE, save_figure
+
+__all__ = ["compare", "write_report"]
+
+SIGNALS = ("h", "alpha")
+UNITS = {"h": "m", "alpha": "rad"}
+
+
+def _aligned_error(model_z: np.ndarray, truth_z: np.ndarray) -> float:
+    """Largest relative RMS error over signals of one period, after the best phase shift.
+
+    Both are one period on uniform grids (any sizes): the truth is trigonometrically
+    resampled to the model's grid, then circularly shifted to best match ``h``.
+    """
+    n = model_z.shape[0]
+    c = np.fft.rfft(truth_z, axis=0)
+    k = min(c.shape[0], n // 2 + 1)
+    tz = np.fft.irfft(c[:k], n=n, axis=0) * (n / truth_z.shape[0])
+    best = np.argmax([np.dot(np.roll(tz[:, 0], s), model_z[:, 0]) for s in range(n)])
+    tz = np.roll(tz, best, axis=0)
+    rms = np.sqrt(np.mean(tz**2, axis=0))
+    return float(np.max(np.sqrt(np.mean((model_z - tz) ** 2, axis=0)) / rms))
+
+
+def compare(model, truth: dict[str, Any], tarr: dict[str, np.ndarray]) -> dict[str, Any]:
+    """Model predictions against the truth: special points, amplitudes, frequencies, series."""
+    from bifid.demo._flutter import CHECKS
+
+    hopf = model.hopf_point()
+    fold = model.cycle_fold()
+    pred = {"hopf_U": hopf["param"], "hopf_omega": hopf["omega"],
+            "criticality": hopf["criticality"],
+            "fold_U": fold["param"] if fold else None}
+    err: dict[str, Any] = {
+        "hopf_U": abs(hopf["param"] - truth["hopf"]["U"]),
+        "hopf_omega_rel": abs(hopf["omega"] / truth["hopf"]["omega"] - 1),
+        "fold_U": (abs(fold["param"] - truth["fold"]["U"]) if fold and truth["fold"]
+                   else math.nan),
+    }
+    rows = []
+    for i, tp in enumerate(truth["test_points"]):
+        branch = "stable" if tp["stable"] else "unstable"
+        row = {"U": tp["U"], "branch": branch, "truth": {s: tp[s] for s in SIGNALS},
+               "truth_omega": tp["omega"]}
+        try:
+            amp = model.predict_amplitude([tp["U"]], branch)[0]
+            names = list(model.signal_names_)
+            row["model"] = {s: float(amp[names.index(s)]) for s in SIGNALS}
+            row["model_omega"] = float(model.predict_frequency([tp["U"]], branch)[0])
+            row["amplitude_rel"] = max(abs(row["model"][s] / tp[s] - 1) for s in SIGNALS)
+            row["frequency_rel"] = abs(row["model_omega"] / tp["omega"] - 1)
+            orb = model.predict_orbit(tp["U"], branch, n_points=256)
+            z = orb["signals"][:, [names.index(s) for s in SIGNALS]]
+            row["series_rel"] = _aligned_error(z, tarr["test_orbits"][i])
+        except BifidError as exc:  # the model has no such cycle: a failed prediction
+            row.update(model=None, amplitude_rel=math.inf, frequency_rel=math.inf,
+                       series_rel=math.inf, note=str(exc))
+        rows.append(row)
+    for key in ("amplitude_rel", "frequency_rel", "series_rel"):
+        err[f"{key}_max"] = max(r[key] for r in rows)
+        err[f"{key}_median"] = float(np.median([r[key] for r in rows]))
+    checks = {
+        "hopf_U": _check(err["hopf_U"], CHECKS["hopf_U"], "m/s"),
+        "fold_U": _check(err["fold_U"], CHECKS["fold_U"], "m/s"),
+        "amplitude_rel": _check(err["amplitude_rel_max"], CHECKS["amplitude_rel"], ""),
+        "frequency_rel": _check(err["frequency_rel_max"], CHECKS["frequency_rel"], ""),
+        "series_rel": _check(err["series_rel_max"], CHECKS["series_rel"], ""),
+    }
+    return {"prediction": pred, "errors": err, "checks": checks, "test_rows": rows}
+
+
+def _check(value: float, limit: float, unit: str) -> dict[str, Any]:
+    ok = bool(np.isfinite(value) and value <= limit)
+    return {"value": float(value), "limit": limit, "unit": unit, "passed": ok}
+
+
+# ------------------------------------------------------------------------------- figures
+def diagram_figure(model, data, truth, tarr, path: Path) -> Path:
+    """Amplitude–speed diagram: truth branch, measured LCOs, model branch and its band."""
+    pred = model.predict_diagram((float(truth["fold"]["U"]) - 0.6 if truth["fold"] else 14.0,
+                                  float(truth["hopf"]["U"]) + 0.4), n_points=160)
+    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    sel = tarr["stable"].astype(bool)
+    for ax, s in zip(axes, SIGNALS, strict=True):
+        for st, style in ((True, STABLE), (False, UNSTABLE)):
+            m = sel == st
+            ax.plot(tarr["U"][m], tarr[s][m], color="k", lw=1.2, ls=style.get("ls", "-"),
+                    label=f"truth {'stable' if st else 'unstable'}")
+        u = np.array([o["param"] for o in pred["orbits"]])
+        a = np.array([o["amplitude"][s] for o in pred["orbits"]])
+        stab = np.array([o["stable"] for o in pred["orbits"]])
+        for st, color, ls in ((True, "tab:blue", "-"), (False, "tab:red", "--")):
+            m = stab == st
+            ax.plot(u[m], a[m], color=color, ls=ls, lw=2, alpha=0.85,
+                    label=f"model {'stable' if st else 'unstable'}")
+        band = pred.get("band") or {}
+        grid = np.asarray(band.get("param", []))
+        for bname, color in (("outer", "tab:blue"), ("inner", "tab:red")):
+            b = band.get("branches", {}).get(bname, {}).get(s)
+            if b is not None and grid.size:
+                lo = np.asarray(b["min"], dtype=float)
+                hi = np.asarray(b["max"], dtype=float)
+                ax.fill_between(grid, lo, hi, color=color, alpha=0.15, lw=0)
+        U = data["param"].values
+        amp = data["amplitude"].sel(signal=s).values
+        lab = data["stable"].values
+        ax.plot(U[lab == 1], amp[lab == 1], "o", color="tab:blue", mec="k", ms=7,
+                label="measured (stable)")
+        ax.plot(U[lab == 0], amp[lab == 0], "o", mfc="white", mec="tab:red", mew=1.8, ms=7,
+                label="measured (unstable)")
+        ax.plot(truth["hopf"]["U"], 0, "k^", ms=8)
+        ax.plot(pred["hopf"][0]["param"] if pred["hopf"] else np.nan, 0, "^", color="tab:orange",
+                ms=8, label="Hopf: model")
+        ax.set_xlabel("wind speed U [m/s]")
+        ax.set_ylabel(f"amplitude max|{s}| [{UNITS[s]}]")
+        ax.grid(alpha=0.3)
+    axes[0].legend(fontsize=7, loc="upper right")
+    axes[0].set_title("heave")
+    axes[1].set_title("pitch")
+    fig.suptitle("flutter: measured LCOs (virtual PP-CBC), hybrid model (band: ensemble), truth")
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def portraits_figure(model, data, path: Path, n_panels: int = 3) -> Path:
+    """Measured orbits (samples) beside the model's cycles at the measured speeds."""
+    from bifid.data import lco_records
+
+    recs = lco_records(data)
+    speeds = sorted({round(float(r.param), 6) for r in recs})
+    pick = [speeds[i] for i in np.unique(np.linspace(0, len(speeds) - 1, n_panels).astype(int))]
+    names = list(model.signal_names_)
+    ih, ia = names.index("h"), names.index("alpha")
+    fig, axes = plt.subplots(1, len(pick), figsize=(4.2 * len(pick), 3.9), squeeze=False)
+    for ax, U in zip(axes[0], pick, strict=True):
+        for r in recs:
+            if abs(r.param - U) > 1e-6:
+                continue
+            st = bool(r.stable)
+            n = min(len(r.signals), int(3 * 2 * np.pi / max(r.frequency, 1e-9) * r.sample_rate))
+            ax.plot(r.signals[:n, 0], r.signals[:n, 1], ".", ms=1.2,
+                    color="tab:blue" if st else "tab:red", alpha=0.35)
+            try:
+                orb = model.predict_orbit(U, "stable" if st else "unstable")
+                z = orb["signals"]
+                ax.plot(np.r_[z[:, ih], z[0, ih]], np.r_[z[:, ia], z[0, ia]],
+                        color="k", lw=1.4, ls="-" if st else "--")
+            except BifidError:
+                pass
+        ax.set_title(f"U = {U:.4g} m/s")
+        ax.set_xlabel("h [m]")
+        ax.set_ylabel("α [rad]")
+        ax.grid(alpha=0.3)
+    fig.suptitle("phase portraits: measured samples (blue stable, red unstable), model (black)")
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+def series_figure(model, truth, tarr, rows, path: Path) -> Path:
+    """One period at untrained speeds, model against truth (phase-aligned)."""
+    names = list(model.signal_names_)
+    mid = sorted({r["U"] for r in rows})
+    U = mid[len(mid) // 2]
+    fig, axes = plt.subplots(2, 2, figsize=(11, 5.6), sharex=True)
+    for j, branch in enumerate(("stable", "unstable")):
+        i = next((k for k, r in enumerate(rows) if r["U"] == U and r["branch"] == branch), None)
+        if i is None or rows[i].get("model") is None:
+            continue
+        orb = model.predict_orbit(U, branch, n_points=256)
+        z = orb["signals"]
+        tz = tarr["test_orbits"][i]
+        n = z.shape[0]
+        c = np.fft.rfft(tz, axis=0)
+        tzr = np.fft.irfft(c[: min(c.shape[0], n // 2 + 1)], n=n, axis=0) * (n / tz.shape[0])
+        best = np.argmax([np.dot(np.roll(tzr[:, 0], s), z[:, names.index("h")])
+                          for s in range(n)])
+        tzr = np.roll(tzr, best, axis=0)
+        phase = np.linspace(0, 1, n, endpoint=False)
+        for k, s in enumerate(SIGNALS):
+            ax = axes[k, j]
+            ax.plot(phase, tzr[:, k], "k", lw=2, label="truth")
+            ax.plot(phase, z[:, names.index(s)], "--", color="tab:orange", lw=1.6,
+                    label="model")
+            ax.set_ylabel(f"{s} [{UNITS[s]}]")
+            ax.grid(alpha=0.3)
+            if k == 0:
+                ax.set_title(f"{branch} LCO at untrained U = {U:.4g} m/s "
+                             f"(error {rows[i]['series_rel']:.1%})")
+        axes[1, j].set_xlabel("t / T")
+    axes[0, 0].legend(fontsize=8)
+    fig.tight_layout()
+    return save_figure(fig, path)
+
+
+# ------------------------------------------------------------------------------- report
+def write_report(out: Path, summary, model, data, truth, tarr, errors, cfg, *,
+                 run_time: float) -> Path:
+    """Figures (PNG) and the self-contained ``report.html``."""
+    from dataclasses import asdict
+
+    from bifid.io import atomic_write_text
+    from bifid.report.html import Report
+
+    figs = {
+        "diagram": diagram_figure(model, data, truth, tarr, out / "diagram.png"),
+        "portraits": portraits_figure(model, data, out / "portraits.png"),
+        "series": series_figure(model, truth, tarr, errors["test_rows"], out / "series.png"),
+    }
+    c = summary["campaign"]
+    p = errors["prediction"]
+    rep = Report(
+        "bifid demo: flutter rig — experiment, identification, prediction",
+        intro=(f"A virtual PP-CBC experiment on the flutter rig ({cfg.sample_rate:.0f} Hz, "
+               f"noise {cfg.noise_fraction:.0%} of each channel's amplitude) measured "
+               f"{c['n_lcos']} limit cycles ({c['n_stable']} stable, {c['n_unstable']} "
+               f"unstable). The hybrid normal-form + neural-network model trained on them "
+               f"predicts the Hopf point at U = {p['hopf_U']:.3f} m/s (truth "
+               f"{truth['hopf']['U']:.3f}) and the fold of cycles at U = "
+               f"{_num(p['fold_U'])} m/s (truth {_num(truth['fold']['U'])}). "
+               f"{sum(v['passed'] for v in errors['checks'].values())} of "
+               f"{len(errors['checks'])} checks pass."),
+    )
+    sec = rep.section("Prediction against the truth")
+    labels = {"hopf_U": "Hopf speed error", "fold_U": "fold speed error",
+              "amplitude_rel": "amplitude error at untrained speeds (max)",
+              "frequency_rel": "frequency error at untrained speeds (max)",
+              "series_rel": "one-period time-series RMS error (max)"}
+    chk = errors["checks"]
+    sec.append(rep.table(
+        ["quantity", "value", "limit"],
+        [[labels[k], _fmtv(v["value"], v["unit"]), _fmtv(v["limit"], v["unit"])]
+         for k, v in chk.items()],
+        passed=[v["passed"] for v in chk.values()]))
+    sec.append(rep.figure(figs["diagram"], "Bifurcation diagram: truth (black), measured LCOs "
+                          "(dots), model (colour; shaded: ensemble band)."))
+    sec.append(rep.text("Per test point (untrained speeds, both branches):"))
+    sec.append(rep.table(
+        ["U [m/s]", "branch", "truth h", "model h", "truth α", "model α", "amp. err",
+         "freq. err", "series err"],
+        [[r["U"], r["branch"], r["truth"]["h"], (r["model"] or {}).get("h", "—"),
+          r["truth"]["alpha"], (r["model"] or {}).get("alpha", "—"), _pct(r["amplitude_rel"]),
+          _pct(r["frequency_rel"]), _pct(r["series_rel"])] for r in errors["test_rows"]]))
+    sec = rep.section("Phase portraits and time series")
+    sec.append(rep.figure(figs["portraits"], "Measured orbits and the model's cycles."))
+    sec.append(rep.figure(figs["series"], "One period at an untrained speed, both branches."))
+    sec = rep.section("The virtual experiment")
+    sec.append(rep.table(["U [m/s]", "label (switch-off)", "label (truth)", "h amplitude [m]",
+                          "error vs truth", "invasiveness: control / feedback RMS"],
+                         _campaign_rows(data, truth)))
+    fails = summary["campaign"].get("failure_reasons") or []
+    sec.append(rep.text(
+        f"{len(fails)} attempted points did not converge and were not recorded"
+        + (":" if fails else ".")))
+    if fails:
+        sec.append(rep.table(["U [m/s]", "reason"],
+                             [[f.get("param", "?"), f.get("reason", "")] for f in fails]))
+    sec = rep.section("Model")
+    try:
+        params = model.parameters()
+    except BifidError:
+        params = {}
+    sec.append(rep.code({"parameters": params, "timings_s": summary["timings_s"],
+                         "stages reused from cache": summary["stages_reused"]}))
+    html = rep.render(settings={"demo": "flutter", **asdict(cfg)}, run_time_s=run_time)
+    atomic_write_text(out / "report.html", html)
+    return out / "report.html"
+
+
+def _campaign_rows(data, truth) -> list[list[Any]]:
+    """Each measured LCO against the exact LCOs at its speed: label and amplitude error.
+
+    The measured amplitude is the Fourier-filtered one the rig reports (``extra_amp_h``;
+    the raw ``max|h|`` of a noisy record is biased up by the noise).
+    """
+    rows = []
+    key = "extra_amp_h" if "extra_amp_h" in data else "amplitude"
+    h = (data[key].values if key != "amplitude"
+         else data["amplitude"].sel(signal="h").values)
+    for k in range(data.sizes["record"]):
+        U = float(data["param"].values[k])
+        lab = int(data["stable"].values[k])
+        cands = [(abs(h[k] - m["h"]), m["stable"], m["h"]) for m in truth.get("measured_speeds", [])
+                 if abs(m["U"] - U) < 1e-9]
+        _, tst, ta = min(cands) if cands else (None, None, math.nan)
+        inv = (float(data["extra_invasiveness"].values[k]) if "extra_invasiveness" in data
+               else math.nan)
+        rows.append([U, {1: "stable", 0: "unstable"}.get(lab, "?"),
+                     "—" if tst is None else ("stable" if tst else "unstable"),
+                     float(h[k]), _pct(abs(h[k] / ta - 1)) if np.isfinite(ta) else "—",
+                     _pct(inv)])
+    return rows
+
+
+def _pct(v: float) -> str:
+    return "—" if not np.isfinite(v) else f"{100 * v:.2f} %"
+
+
+def _num(v) -> str:
+    return "none" if v is None or not np.isfinite(v) else f"{v:.3f}"
+
+
+def _fmtv(v: float, unit: str) -> str:
+    if unit:
+        return f"{v:.4g} {unit}"
+    return _pct(v)
