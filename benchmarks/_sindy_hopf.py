@@ -17,8 +17,14 @@ import jax.numpy as jnp
 import numpy as np
 
 
-def fit_sindy(records, threshold: float = 0.05, degree: int = 3) -> dict[str, Any]:
-    """Fit SINDy to the stable records ``(param, signals, fs, stable)``; return the model."""
+def fit_sindy(
+    records, threshold: float = 0.05, degree: int = 3, smooth: int = 0
+) -> dict[str, Any]:
+    """Fit SINDy to the stable records ``(param, signals, fs, stable)``; return the model.
+
+    ``smooth``: if > 0, derivatives by pysindy's ``SmoothedFiniteDifference`` with a
+    Savitzky–Golay window of that many samples (what a user would pick for noisy
+    measurements); 0: plain finite differences (pysindy's default)."""
     import pysindy as ps
 
     stable = [r for r in records if r[3]]
@@ -29,6 +35,8 @@ def fit_sindy(records, threshold: float = 0.05, degree: int = 3) -> dict[str, An
     model = ps.SINDy(
         feature_library=ps.PolynomialLibrary(degree=degree),
         optimizer=ps.STLSQ(threshold=threshold, alpha=1e-6),
+        **({"differentiation_method": ps.SmoothedFiniteDifference(
+            smoother_kws={"window_length": int(smooth), "polyorder": 3})} if smooth else {}),
     )
     model.fit(
         [x / scale for x in X],

@@ -244,6 +244,18 @@ def test_cli_fit_and_predict(tmp_path, capsys):
     assert {"hopf", "cycle_folds", "orbits"} <= set(pred)
     assert pred["hopf"][0]["param"] == pytest.approx(out["parameters"]["mu0"])
     assert set(pred["orbits"][0]["amplitude"]) == set(NAMES)
+    # --set at=U: one period of every signal on both cycles at U (analytic radius, period)
+    with pytest.raises(SystemExit) as exc:
+        main(["predict", str(tmp_path / "m"), "--range", "0.5", "1.3", "--json",
+              "--n-points", "10", "--set", "at=0.9"])
+    assert exc.value.code in (0, None)
+    cycles = json.loads(capsys.readouterr().out)["cycles"]
+    assert [c["branch"] for c in cycles] == ["stable", "unstable"]
+    for c in cycles:
+        assert c["period"] == pytest.approx(2 * np.pi / OMEGA, rel=5e-3)
+        x = np.asarray(c["signals"]["x"])
+        assert np.max(np.abs(x)) == pytest.approx(amplitude(0.9, c["branch"] == "stable")[0],
+                                                  rel=0.01)
     with pytest.raises(SystemExit) as exc:
         main(["predict", str(tmp_path / "m"), "--param", "U", "--range", "0.5", "1.3"])
     assert exc.value.code == 2

@@ -5,7 +5,9 @@ normal-form-like Hopf model with a learnt coordinate map and oscillation speed, 
 stable and unstable limit cycles. ``--cv loo`` adds leave-one-orbit-out validation (every
 record left out in turn, its amplitudes and frequency predicted by a model trained on the
 others). ``bifid predict MODEL --range A B`` returns the keys of ``bifid continue``
-(``hopf``, ``cycle_folds``, ``secondary``, ``orbits``) plus ``band`` (the ensemble's spread).
+(``hopf``, ``cycle_folds``, ``secondary``, ``orbits``) plus ``band`` (the ensemble's spread);
+``--set at=U`` adds ``cycles``: one period of every signal on each cycle at ``U`` (phase
+portraits, time series); ``--set member=K`` predicts with ensemble member ``K``.
 """
 
 from __future__ import annotations
@@ -234,9 +236,11 @@ def predict_hopf_hybrid(model_dir: Path, options: dict[str, Any]) -> dict[str, A
         )
     sets = dict(options.get("sets") or {})
     member = sets.pop("member", None)
+    at = sets.pop("at", None)
     if sets:
         raise BifidInputError(
-            f"Unknown --set names for a hopf_hybrid model: {sorted(sets)}; only 'member'."
+            f"Unknown --set names for a hopf_hybrid model: {sorted(sets)}; only 'member' "
+            "(ensemble member) and 'at' (parameter value of the cycles to return)."
         )
     if member is not None and not (0 <= int(member) < model.n_members_):
         raise BifidInputError(f"member must be in 0..{model.n_members_ - 1}, got {member}.")
@@ -247,12 +251,35 @@ def predict_hopf_hybrid(model_dir: Path, options: dict[str, Any]) -> dict[str, A
         member=None if member is None else int(member),
     )
     payload = {"param": model.param_name_, **diagram}
+    if at is not None:
+        payload["cycles"] = _cycles_at(model, float(at), None if member is None else int(member))
     if options.get("plot") is not None:
         from bifid.identify._hopf_figures import diagram_figure, save_figure
 
         save_figure(diagram_figure(model, None, param_range=prange), options["plot"])
         payload["plot"] = str(options["plot"])
     return payload
+
+
+def _cycles_at(model, param: float, member: int | None, n_points: int = 128) -> list[dict]:
+    """One period of every signal (phase portrait / time series) of each cycle at ``param``:
+    ``[{param, branch, period, t, signals: {name: [...]}}]`` (stable first; empty where the
+    model has no cycle)."""
+    out = []
+    for branch in ("stable", "unstable"):
+        try:
+            orb = model.predict_orbit(param, branch, n_points=n_points, member=member)
+        except BifidInputError:
+            continue
+        out.append({
+            "param": param,
+            "branch": branch,
+            "period": float(orb["period"]),
+            "t": orb["t"].tolist(),
+            "signals": {k: orb["signals"][:, j].tolist()
+                        for j, k in enumerate(model.signal_names_)},
+        })
+    return out
 
 
 register_predictor("hopf_hybrid", predict_hopf_hybrid)

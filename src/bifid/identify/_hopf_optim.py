@@ -102,7 +102,11 @@ def _lbfgs(fun, vg, theta0, saved0, n, memory, offset, stop_at, mask, limit,
             t = 0.5 * t
             return t, fun(x + t * direction), j + 1
 
-        t, ft, _ = jax.lax.while_loop(cond, body, (t0, fun(x + t0 * direction), 0))
+        # the first trial (t = t0) is the loop's first pass: one traced copy of the loss
+        # instead of two (the compile time of these loops is most of a cold fit)
+        t, ft, _ = jax.lax.while_loop(
+            cond, body, (2.0 * t0, jnp.full_like(f, jnp.inf), jnp.asarray(-1))
+        )
         accept = jnp.isfinite(ft) & (ft <= f + 1e-4 * t * slope)
         x_new = jnp.where(accept, x + t * direction, x)
         (f_new, aux_new), g_new = vg(x_new)

@@ -18,8 +18,8 @@ import numpy as np
 from bifid.errors import BifidInputError, ConvergenceWarning
 from bifid.identify._hopf_data import LCOData
 from bifid.identify._hopf_polar import (
-    polar_coefficients,
-    polygon_centroid,
+    polar_coefficients_np,
+    polygon_centroid_np,
     unwrapped_angle,
     whole_periods,
 )
@@ -111,7 +111,7 @@ def prepare(
             )
         t_all = np.arange(len(zn)) / data.sample_rates[i]
         pts = pts[:n_whole]
-        c = np.asarray(polygon_centroid(jnp.asarray(pts)))
+        c = polygon_centroid_np(pts)
         # frequency: time of `turns` whole revolutions about the centroid (interpolated)
         ang = unwrapped_angle(zn[:, [i1, i2]] @ white, c)
         travel = direction * (ang - ang[0])
@@ -119,7 +119,7 @@ def prepare(
         k = min(max(k, 1), len(travel) - 1)
         frac = (turns * 2 * np.pi - travel[k - 1]) / max(travel[k] - travel[k - 1], 1e-300)
         slope = turns * 2 * np.pi / ((k - 1 + frac) / data.sample_rates[i])
-        coef = np.asarray(polar_coefficients(jnp.asarray(pts), jnp.asarray(c), n_harmonics))
+        coef = polar_coefficients_np(pts, c, n_harmonics)
         d = pts - c[None, :]
         coefs.append(coef)
         centres.append(c)
@@ -207,8 +207,8 @@ def choose_harmonics(
         nmax = int(min(n_max, (len(pts) - 1) // 6))
         if nmax <= 4:
             continue
-        c = np.asarray(polygon_centroid(jnp.asarray(pts)))
-        coef = np.asarray(polar_coefficients(jnp.asarray(pts), jnp.asarray(c), nmax))
+        c = polygon_centroid_np(pts)
+        coef = polar_coefficients_np(pts, c, nmax)
         amp = np.sqrt(0.5 * (coef[1 : nmax + 1] ** 2 + coef[nmax + 1 :] ** 2))  # per harmonic
         floor = float(np.median(amp[-max(2, nmax // 4) :]))  # noise level per harmonic
         above = np.nonzero(amp > max(tol * coef[0], 4.0 * floor))[0]

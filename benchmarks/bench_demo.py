@@ -1,0 +1,74 @@
+#!/usr/bin/env python
+"""The demos end to end (issue 7): wall time per stage, the cached second run, the checks.
+
+Runs ``bifid demo flutter`` and ``bifid demo forced`` into fresh temporary directories (each
+in its own process, as a user would), then once more to time the cached re-run, renders
+each report in headless Chromium when installed, and writes the "demo" section of
+BENCHMARKS.md. Usage: ``python benchmarks/bench_demo.py [--only flutter|forced]``.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from _report import write_section
+
+BIFID = Path(sys.executable).with_name("bifid")
+
+
+def run_demo(which: str, out: Path) -> tuple[float, dict]:
+    t0 = time.perf_counter()
+    r = subprocess.run([str(BIFID), "demo", which, "--out", str(out), "--json", "--quiet"],
+                       capture_output=True, text=True)
+    wall = time.perf_counter() - t0
+    if r.returncode != 0:
+        raise SystemExit(f"bifid demo {which} failed ({r.returncode}): {r.stderr[-2000:]}")
+    return wall, json.loads(r.stdout)["summary"]
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser()
+    ap.add_argument("--only", choices=["flutter", "forced"], default=None)
+    args = ap.parse_args()
+    from bifid.report.render import check_report, find_chromium
+
+    lines = ["## demo — `bifid demo flutter|forced` end to end (issue 7)", "",
+             "Fresh output directory, each demo in its own process (JIT compilation included; "
+             "the persistent compilation cache may be warm), then a second run in the same "
+             "directory (every stage reused from the cache). Limit: 10 min on 2 cores.", "",
+             "| demo | first run [s] | truth | campaign | model | compare + report | "
+             "second run [s] | ratio | checks passed | Chromium: figures shown |",
+             "|---|---|---|---|---|---|---|---|---|---|"]
+    details = []
+    for which in ([args.only] if args.only else ["flutter", "forced"]):
+        with tempfile.TemporaryDirectory(prefix=f"bifid-demo-{which}-") as tmp:
+            out = Path(tmp)
+            wall1, s1 = run_demo(which, out)
+            wall2, _s2 = run_demo(which, out)
+            t = s1["timings_s"]
+            chk = s1["checks"]
+            shown = "not installed"
+            if find_chromium() is not None:
+                res = check_report(out / "report.html")
+                shown = f"{res['decoded']}/{res['in_html']}"
+            lines.append(
+                f"| {which} | {wall1:.0f} | {t['truth']:.0f} | {t['campaign']:.0f} | "
+                f"{t['model']:.0f} | {t['compare']:.0f} | {wall2:.1f} | "
+                f"{wall1 / wall2:.0f}× | {sum(c['passed'] for c in chk.values())}/{len(chk)} | "
+                f"{shown} |")
+            details.append(f"**{which}** errors: " + ", ".join(
+                f"{k} = {v['value']:.4g} (limit {v['limit']:g})" for k, v in chk.items()))
+            print(lines[-1], flush=True)
+    write_section("demo", "\n".join([*lines, "", *details]))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())
