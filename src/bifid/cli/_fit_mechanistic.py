@@ -184,7 +184,12 @@ def fit_mechanistic_cmd(
         if plot is not None:
             from bifid.identify.mechanistic import plot_diagram
 
-            _, branches = est.predict_diagram(*_plot_range(lco))
+            with warnings.catch_warnings(record=True) as caught_plot:
+                warnings.simplefilter("always")
+                _, branches = est.predict_diagram(*_plot_range(lco))
+            for w in caught_plot:
+                print(f"bifid: warning (plot): {w.message}", file=sys.stderr)
+            payload["warnings"] += [f"plot: {w.message}" for w in caught_plot]
             plot_diagram(branches, lco, plot, output=out_names[0], title=f"{model}: fitted model")
             payload["plot"] = str(plot)
         if json_out:

@@ -100,9 +100,16 @@ def monodromy(
     a = np.moveaxis(a, 0, 1)
     b = np.moveaxis(b, 0, 1)
     fn = _monodromy_fn(rhs, a.shape[1], steps_per_mesh * orbits.shape[1])
-    Phi, ok = fn(jnp.asarray(a0), jnp.asarray(a), jnp.asarray(b), jnp.asarray(periods),
-                 jnp.asarray(ps))
-    return np.asarray(Phi), np.asarray(ok)
+    # pad the batch to a power of two (>= 8) by repeating the last orbit, so branches of
+    # different lengths reuse a handful of compiled shapes instead of one each
+    n_orb = orbits.shape[0]
+    size = max(8, 1 << max(n_orb - 1, 0).bit_length())
+    idx = np.minimum(np.arange(size), max(n_orb - 1, 0))
+    periods = np.asarray(periods, dtype=float)
+    ps = np.asarray(ps, dtype=float)
+    Phi, ok = fn(jnp.asarray(a0[idx]), jnp.asarray(a[idx]), jnp.asarray(b[idx]),
+                 jnp.asarray(periods[idx]), jnp.asarray(ps[idx]))
+    return np.asarray(Phi)[:n_orb], np.asarray(ok)[:n_orb]
 
 
 def floquet_multipliers(

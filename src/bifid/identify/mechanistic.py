@@ -223,6 +223,7 @@ class LMResult:
     message: str
     history: list[dict[str, Any]] = field(default_factory=list)
     p: np.ndarray | None = None
+    jac_time_s: float = 0.0  # wall time inside ``jac`` (set by the whole-diagram stage)
 
 
 def levenberg_marquardt(
@@ -616,6 +617,7 @@ class OrbitSet:
     outputs: tuple[str, ...]
     ys: np.ndarray | None = None  # (n_meas, M*n + 2): V, T, lambda
     sides: np.ndarray | None = None  # +1 stable side (dlambda/dA > 0), -1 Hopf side
+    p_ys: np.ndarray | None = None  # parameter vector the orbits ``ys`` solve (if known)
 
     def __post_init__(self) -> None:
         from bifid.continuation import orbit_problem
@@ -708,6 +710,8 @@ class OrbitSet:
             )
         self.ys = np.array(ys)
         self.sides = None
+        bp = getattr(branch, "p", None)
+        self.p_ys = None if bp is None else np.asarray(bp, dtype=float).copy()
         new = self.solve(p)
         if new is None:
             raise ConvergenceError(
@@ -715,6 +719,7 @@ class OrbitSet:
                 "continued branch (increase n_mesh or check the data)."
             )
         self.ys = new
+        self.p_ys = np.asarray(p, dtype=float).copy()
         self.sides = np.array([self._side(y, p) for y in new])
         return np.asarray(matched, dtype=int)
 
@@ -725,28 +730,49 @@ class OrbitSet:
         return {"p": jnp.asarray(p), "idx": jnp.asarray(self._idx),
                 "dref": jnp.asarray((self._D @ V).ravel())}
 
-    def solve(self, p: np.ndarray, *, tol: float = 1e-11) -> np.ndarray | None:
+    def solve(self, p: np.ndarray, *, tol: float = 1e-11,
+              max_substeps: int = 8) -> np.ndarray | None:
         """Re-solve every orbit at its fixed parameter from the current ones (warm start).
+
+        If Newton fails from the current orbit and the parameters ``p_ys`` of the current
+        orbits are known, the orbit is followed along the straight path from ``p_ys`` to
+        ``p`` in 2, 4, ... ``max_substeps`` steps (a natural-parameter homotopy in the
+        model parameters; the measured ``lambda_j`` stays fixed).
 
         Returns the new orbits (not stored), or None if an orbit fails to converge or has
         moved to the other side of a cycle fold.
         """
-        from bifid.continuation import correct
-
         assert self.ys is not None
+        p = np.asarray(p, dtype=float)
         new = np.empty_like(self.ys)
-        row = np.zeros(self.ys.shape[1])
-        row[-1] = 1.0
         for j, y0 in enumerate(self.ys):
-            args = self._args(p, y0)
-            y, ok, _, _ = correct(self.problem, y0, row, float(y0[-1]), args, tol=tol,
-                                  max_iter=15)
-            if not ok or not np.all(np.isfinite(y)):
+            y = self._correct(y0, p, tol)
+            n_sub = 2
+            while y is None and self.p_ys is not None and n_sub <= max_substeps:
+                y = y0
+                for k in range(1, n_sub + 1):
+                    y = self._correct(y, self.p_ys + (p - self.p_ys) * (k / n_sub), tol)
+                    if y is None:
+                        break
+                n_sub *= 2
+            if y is None:
                 return None
             if self.sides is not None and self._side(y, p) != self.sides[j]:
                 return None
             new[j] = y
         return new
+
+    def _correct(self, y0: np.ndarray, p: np.ndarray, tol: float) -> np.ndarray | None:
+        """Newton correction of one orbit at fixed ``lambda`` (None if it fails)."""
+        from bifid.continuation import correct
+
+        row = np.zeros(y0.shape[0])
+        row[-1] = 1.0
+        y, ok, _, _ = correct(self.problem, y0, row, float(y0[-1]), self._args(p, y0), tol=tol,
+                              max_iter=15)
+        if not ok or not np.all(np.isfinite(y)):
+            return None
+        return np.asarray(y)
 
     def _side(self, y: np.ndarray, p: np.ndarray) -> int:
         """Sign of ``d lambda / d A`` along the branch at ``y`` (A: first output's amplitude).
@@ -820,6 +846,9 @@ class WholeDiagramResult:
     time_s: float
     orbits: OrbitSet
     singular_values: np.ndarray
+    jac_time_s: float = 0.0
+    n_jev: int = 0
+    branch_time_s: float = 0.0
 
     def to_dict(self) -> dict[str, Any]:
         return {
@@ -833,6 +862,9 @@ class WholeDiagramResult:
             "message": self.lm.message,
             "gradient": self.gradient,
             "time_s": self.time_s,
+            "jacobian_time_s": self.jac_time_s,
+            "jacobian_evaluations_total": self.n_jev,
+            "branch_time_s": self.branch_time_s,
             "singular_values": self.singular_values.tolist(),
             "cost_history": [h["cost"] for h in self.lm.history],
         }
@@ -872,8 +904,10 @@ def whole_diagram_update(
     n_mesh : int
         Collocation points per orbit.
     branch : Branch, optional
-        A periodic-orbit branch of the model at ``p`` (``hopf_orbits``) for the initial
-        matching; computed if not given.
+        A periodic-orbit branch (``hopf_orbits``) for the initial matching, of the model at
+        ``p`` or of a nearby model (its orbits are then followed from ``branch.p`` to
+        ``p``, see :meth:`OrbitSet.solve`); used for the first step of the schedule,
+        computed if not given.
     gradient : {"implicit", "fd"}
         Exact implicit-differentiation Jacobian, or forward finite differences (each
         column re-solves every orbit) — the baseline the thesis used.
@@ -915,6 +949,7 @@ def whole_diagram_update(
     rms_start = None
     lm = orbits = None
     nf_init = None
+    jac_time, n_jev, branch_time = 0.0, 0, 0.0
     if schedule == "arclength":
         p, nf_init = _normal_form_start(sys_, p, free, data, param, outputs[0], hopf_guess,
                                         n_mesh)
@@ -924,8 +959,10 @@ def whole_diagram_update(
         sub = data.select(np.isin(np.arange(len(data)), members))
         for attempt in range(4):
             if branch is None or g > 0 or attempt > 0:
+                tb = time.perf_counter()
                 branch = model_branch(sys_, p, param, n_mesh=n_mesh, guess=hopf_guess,
                                       param_range=_default_range(data))
+                branch_time += time.perf_counter() - tb
             hopf_guess = float(branch.meta.get("start_param",
                                                hopf_guess or p[sys_.index(param)]))
             orbits = OrbitSet(sys_, param, n_mesh, outputs)
@@ -935,6 +972,8 @@ def whole_diagram_update(
                 rms_start = float(np.sqrt(np.mean((orbits.amplitudes() - meas_all) ** 2)))
             lm = _fit_orbits(orbits, sys_, p, free, sub_m, outputs, scale, gradient, fd_step,
                              max_iter, xtol)
+            jac_time += lm.jac_time_s
+            n_jev += lm.n_jev
             for h in lm.history:
                 history.append({**h, "group": g, "n_lcos": len(sub_m)})
             p = lm.p
@@ -964,7 +1003,7 @@ def whole_diagram_update(
         params={nm: float(p[i]) for nm, i in zip(free, idx, strict=True)}, p=p,
         amplitudes=amps, residuals=res, rms=float(np.sqrt(np.mean(res**2))), rms_start=rms_start,
         lm=lm, gradient=gradient, time_s=time.perf_counter() - t_start, orbits=orbits,
-        singular_values=sv,
+        singular_values=sv, jac_time_s=jac_time, n_jev=n_jev, branch_time_s=branch_time,
     )
 
 
@@ -1053,6 +1092,7 @@ def _fit_orbits(orbits: OrbitSet, sys_: System, p: np.ndarray, free: tuple[str, 
     def on_accept(phi):
         assert np.array_equal(trial["phi"], phi)
         orbits.ys = trial["ys"]
+        orbits.p_ys = p_of(phi)
 
     def jac_implicit(phi):
         pp = p_of(phi)
@@ -1087,9 +1127,20 @@ def _fit_orbits(orbits: OrbitSet, sys_: System, p: np.ndarray, free: tuple[str, 
             return r0
         return fun(phi)
 
-    lm = levenberg_marquardt(fun0, jac_implicit if gradient == "implicit" else jac_fd, phi0,
-                             max_iter=max_iter, xtol=xtol, on_accept=on_accept)
+    jac_fn = jac_implicit if gradient == "implicit" else jac_fd
+    jac_time = [0.0]
+
+    def timed_jac(phi):
+        t = time.perf_counter()
+        try:
+            return jac_fn(phi)
+        finally:
+            jac_time[0] += time.perf_counter() - t
+
+    lm = levenberg_marquardt(fun0, timed_jac, phi0, max_iter=max_iter, xtol=xtol,
+                             on_accept=on_accept)
     lm.p = p_of(lm.x)
+    lm.jac_time_s = jac_time[0]
     return lm
 
 
@@ -1291,6 +1342,7 @@ class MechanisticModel:
         self.stages_: dict[str, Any] = {}
         self.params_: dict[str, float] = {}
         self.stage_p_: dict[str, np.ndarray] = {}
+        diag_cache: dict[bytes, dict[str, Any]] = {}  # one branch per parameter vector
         hopf_guess = self.hopf_guess if self.hopf_guess is not None else float(np.max(data.param))
         out0 = self.outputs[0]
         unstable = data.stable == 0
@@ -1337,7 +1389,8 @@ class MechanisticModel:
         nf = hopf_normal_form(sys_, param, p=jnp.asarray(p), guess=hopf_guess)
         hopf_guess = nf.param_value
         if "linear" in self.stages:
-            self.stages_["linear"].update(self._diagram_error(sys_, p, param, data, hopf_guess))
+            self.stages_["linear"].update(
+                self._diagram_error(sys_, p, param, data, hopf_guess, diag_cache))
             self.stages_["linear"]["hopf"] = _hopf_summary(nf)
 
         # -------- stage 2: normal form
@@ -1362,7 +1415,7 @@ class MechanisticModel:
             }
             self.stages_["normal_form"] = {**res2.to_dict(), "n_lcos": int(np.sum(sel))}
             self.stages_["normal_form"].update(
-                self._diagram_error(sys_, p, param, data, hopf_guess))
+                self._diagram_error(sys_, p, param, data, hopf_guess, diag_cache))
             self.near_hopf_ = res2
 
         # -------- stage 3: whole diagram
@@ -1382,7 +1435,7 @@ class MechanisticModel:
         nf = hopf_normal_form(sys_, param, p=jnp.asarray(p), guess=hopf_guess)
         self.normal_form_ = nf
         self.hopf_ = _hopf_summary(nf)
-        final = self._diagram_error(sys_, p, param, data, nf.param_value)
+        final = self._diagram_error(sys_, p, param, data, nf.param_value, diag_cache)
         self.cycle_fold_ = final.get("cycle_fold")
         last = self.stages[-1]
         if last != "whole_diagram":
@@ -1395,13 +1448,24 @@ class MechanisticModel:
         return self
 
     def _diagram_error(self, sys_: System, p: np.ndarray, param: str, data: LCOData,
-                       hopf_guess: float) -> dict[str, Any]:
+                       hopf_guess: float, cache: dict[bytes, dict[str, Any]] | None = None
+                       ) -> dict[str, Any]:
         """RMS amplitude error of the model's diagram at the measured LCOs (fixed parameters).
 
         LCOs the model has no orbit for (e.g. a stable LCO below the model's cycle fold)
         are listed in ``missing`` and left out of ``rms_all`` (``n_matched`` says how many
         entered it).
         """
+        key = np.asarray(p, dtype=float).tobytes()
+        if cache is not None and key in cache:
+            return dict(cache[key])
+        out = self._diagram_error_uncached(sys_, p, param, data, hopf_guess)
+        if cache is not None:
+            cache[key] = dict(out)
+        return out
+
+    def _diagram_error_uncached(self, sys_: System, p: np.ndarray, param: str, data: LCOData,
+                                hopf_guess: float) -> dict[str, Any]:
         br = model_branch(sys_, p, param, n_mesh=self.n_mesh, guess=hopf_guess,
                           param_range=_default_range(data))
         folds = [sp.param for sp in br.special_points if sp.kind == "cycle_fold"]
