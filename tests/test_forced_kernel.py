@@ -56,6 +56,21 @@ def records(forcing: float, n: int = 16, curve_id: int = 0) -> list[ForcedRecord
     return out
 
 
+def scurve_records(omega: float, rho: np.ndarray, curve_id: int) -> list[ForcedRecord]:
+    """Exact S-curve points at fixed Ω (eq. 6.11 solved for Γ at each ρ)."""
+    b = W0 + K * rho**2
+    forcing = np.sqrt((C * rho) ** 2 + ((b - omega) * rho) ** 2) / KAPPA
+    psi = np.arctan2(C * rho, -(b - omega) * rho)
+    out = []
+    for f, r, p in zip(forcing, rho, psi, strict=True):
+        fs = 64 * omega / (2 * np.pi)
+        t = np.arange(128) / fs
+        y = -r * np.cos(omega * t + p)
+        out.append(ForcedRecord(omega=omega, forcing=f, signals=y[:, None], sample_rate=fs,
+                                force=f * np.cos(omega * t), amplitude=r, curve=curve_id))
+    return out
+
+
 @pytest.fixture(scope="module")
 def dataset():
     recs = records(TRAIN_F[0]) + records(TRAIN_F[1], curve_id=1)
@@ -94,7 +109,8 @@ def test_gp_likelihood_matches_tinygp_and_loo_is_exact():
                                           x_scale=np.asarray(st.x_scale),
                                           y_scale=float(st.y_scale))
         brute.append(float(gi.predict(x[i : i + 1])[0]) - y[i])
-    kinv = np.linalg.inv(np.asarray(st.chol) @ np.asarray(st.chol).T)
+    chol = np.asarray(st.chol)[:30, :30]  # the state is padded to a bucket size
+    kinv = np.linalg.inv(chol @ chol.T)
     closed = -(kinv @ ys)[::10] / np.diag(kinv)[::10] * float(st.y_scale)
     np.testing.assert_allclose(closed, brute, rtol=1e-6, atol=1e-10)
 
@@ -114,12 +130,14 @@ def test_gp_pathwise_samples_have_the_posterior_moments():
     rng = np.random.default_rng(3)
     x = rng.uniform(0, 3, (25, 2))
     y = np.cos(x[:, 0]) + x[:, 1] ** 2 + 0.05 * rng.normal(size=25)
-    gp = GPRegressor(basis=((0, 0), (1, 0), (0, 2)), n_restarts=0).fit(x, y)
+    # sampling, not selection, is under test: fixed hyperparameters (log σ, log ℓ, log τ, log σ_n)
+    theta = np.array([0.0, 0.0, 0.0, 0.0, 0.0, 0.0, np.log(0.05)])
+    gp = GPRegressor(basis=((0, 0), (1, 0), (0, 2))).fit(x, y, theta=theta)
     xt = np.array([[0.5, 0.5], [1.5, 2.9], [4.5, 1.0]])  # the last one extrapolates
     mu, sd = gp.predict(xt, return_std=True)
     s = gp.sample_functions(600, seed=5, n_features=1024)
-    vals = np.asarray(jax.vmap(sample_eval, in_axes=(None, 0, None))(gp.state_, s,
-                                                                    jnp.asarray(xt)))
+    vals = np.asarray(jax.jit(jax.vmap(sample_eval, in_axes=(None, 0, None)))(
+        gp.state_, s, jnp.asarray(xt)))
     np.testing.assert_allclose(vals.mean(0), mu, atol=4 * sd.max() / math.sqrt(600) + 1e-6)
     np.testing.assert_allclose(vals.std(0), sd, rtol=0.15)
     assert sd[2] > 2 * max(sd[0], sd[1])  # wider away from the data
@@ -162,6 +180,22 @@ def test_frc_at_untrained_forcing_matches_the_exact_curve(model, forcing):
     # band: the exact curve is inside it at most points; wider when extrapolating
     cov = band_coverage(br, om, rho, np.pi - psi)
     assert cov["n"] > 50 and cov["coverage"] > 0.6
+
+
+def test_fit_from_scurves_with_default_settings():
+    """S-curves (fixed Ω, curve ids) at four frequencies, default settings: κ identified,
+    FRC at an untrained forcing level exact (the setting of ``bifid demo forced``)."""
+    recs = []
+    for c, om in enumerate((0.995, 1.0, 1.004, 1.008)):
+        recs += scurve_records(om, np.linspace(0.2, 4.0, 8), c)
+    ds = forced_dataset(recs, ["y"], observed="y", system="analytic", source="test")
+    m = ForcedKernelModel(n_restarts=0, max_phi_points=64).fit(ds)
+    assert m.forcing_scale_ == pytest.approx(KAPPA, rel=1e-3)
+    br = m.frc(0.009, (0.97, 1.03))
+    g = KAPPA * 0.009
+    assert br.meta["peak"]["amplitude"] == pytest.approx(g / C, rel=1e-3)
+    folds = np.sort([sp.param for sp in br.special("fold")])
+    np.testing.assert_allclose(folds, exact_folds(0.009), rtol=1e-5)
 
 
 def test_band_widens_away_from_the_data(model):
@@ -246,17 +280,17 @@ def test_input_errors_and_unfitted():
 
 def test_single_frequency_needs_a_scale_or_linear_frequency():
     om = 0.98
-    rho = np.linspace(0.2, 3.0, 12)
+    rho = np.linspace(0.2, 3.0, 32)  # the fixture's size: the same compiled programs
     g = np.sqrt((C * rho) ** 2 + (W0 + K * rho**2 - om) ** 2 * rho**2)
     lag = np.pi - np.arctan2(C * rho, -(W0 + K * rho**2 - om) * rho)
     with pytest.raises(BifidInputError, match="several forcing frequencies"):
         ForcedKernelModel(forcing_scale="fit", observation=False).fit(
-            omega=np.full(12, om), forcing=g / KAPPA, amplitude=rho, phase=lag)
+            omega=np.full(32, om), forcing=g / KAPPA, amplitude=rho, phase=lag)
     m = ForcedKernelModel(linear_frequency=W0, n_restarts=0, observation=False).fit(
-        omega=np.full(12, om), forcing=g / KAPPA, amplitude=rho, phase=lag)
+        omega=np.full(32, om), forcing=g / KAPPA, amplitude=rho, phase=lag)
     assert m.forcing_scale_ == pytest.approx(KAPPA, rel=1e-3)
     m1 = ForcedKernelModel(n_restarts=0, observation=False).fit(
-        omega=np.full(12, om), forcing=g / KAPPA, amplitude=rho, phase=lag)
+        omega=np.full(32, om), forcing=g / KAPPA, amplitude=rho, phase=lag)
     assert m1.forcing_scale_ == 1.0 and any("κ" in n for n in m1.notes_)
 
 

@@ -381,10 +381,10 @@ def _newton2(fun, u0: Array, n_iter: int = 25) -> tuple[Array, Array]:
     """Plain Newton on a 2×2 system from ``u0``; returns (u, max|F(u)|)."""
 
     def body(_, u):
-        f = fun(u)
-        jac = jax.jacfwd(fun)(u)
-        du = jnp.linalg.solve(jac, -f)
-        return u + du
+        j, f = jax.jacfwd(lambda v: (fun(v), fun(v)), has_aux=True)(u)  # one forward pass
+        det = j[0, 0] * j[1, 1] - j[0, 1] * j[1, 0]  # Cramer's rule: cheap under vmap
+        du = jnp.stack([j[0, 1] * f[1] - j[1, 1] * f[0], j[1, 0] * f[0] - j[0, 0] * f[1]])
+        return u + du / det
 
     u = jax.lax.fori_loop(0, n_iter, body, u0)
     return u, jnp.max(jnp.abs(fun(u)))
@@ -401,25 +401,25 @@ def _frc_samples_at_psi_jit(m, s, gamma, psi, rho0, omega0):
                     lambda rr, oo: _ab_sample(m, si, rr, oo), jnp.stack([u[0], p, u[1]]), gamma
                 )
 
-            return _newton2(fun, jnp.stack([r0, o0]), n_iter=8)
+            return _newton2(fun, jnp.stack([r0, o0]), n_iter=6)
 
         return jax.vmap(per_point)(psi, rho0, omega0)
 
     return jax.vmap(per_sample)(s)
 
 
-def _backbone_scan(ab, rho: Array, omega0: Array) -> tuple[Array, Array]:
+def _backbone_scan(bfun, rho: Array, omega0: Array) -> tuple[Array, Array]:
     """Solve ``b(ρ, Ω) = Ω`` (eq. 6.21) along the ρ grid by warm-started Newton."""
 
     def g(o, r):
-        return ab(r, o)[1] - o
+        return bfun(r, o) - o
 
     def step(o_prev, r):
         def body(_, o):
-            val, der = jax.value_and_grad(g)(o, r)
+            val, der = jax.jvp(lambda oo: g(oo, r), (o,), (jnp.ones_like(o),))
             return o - val / der
 
-        o = jax.lax.fori_loop(0, 30, body, o_prev)
+        o = jax.lax.fori_loop(0, 8, body, o_prev)
         return o, (o, jnp.abs(g(o, r)))
 
     _, (om, res) = jax.lax.scan(step, omega0, rho)
@@ -428,13 +428,17 @@ def _backbone_scan(ab, rho: Array, omega0: Array) -> tuple[Array, Array]:
 
 @jax.jit
 def _backbone_mean_jit(m: ReducedModel, rho: Array, omega0: Array):
-    return _backbone_scan(lambda r, o: _ab_mean(m, r, o), rho, omega0)
+    return _backbone_scan(lambda r, o: gp_mean(m.b, jnp.stack([r, o])) + m.omega_c, rho,
+                          omega0)
 
 
 @jax.jit
 def _backbone_samples_jit(m: ReducedModel, s: ReducedSamples, rho: Array, omega0: Array):
-    return jax.vmap(lambda si: _backbone_scan(lambda r, o: _ab_sample(m, si, r, o), rho,
-                                              omega0))(s)
+    def one(sb):
+        return _backbone_scan(lambda r, o: sample_eval(m.b, sb, jnp.stack([r, o])) + m.omega_c,
+                              rho, omega0)
+
+    return jax.vmap(one)(s.b)
 
 
 def _sgamma(a: Array, b: Array, rho: Array, omega: Array) -> tuple[Array, Array]:

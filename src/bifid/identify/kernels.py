@@ -55,7 +55,10 @@ uncertainty band around predicted bifurcation curves.
 
 Compilation: training sets are padded to a few bucket sizes with masked rows (exactly
 neutral: padded rows/columns of ``K_y`` are those of the identity and the targets 0), so the
-objective compiles once per (bucket, basis, criterion), not once per data size.
+objective compiles once per (bucket, basis, criterion), not once per data size. The fitted
+:class:`GPState` keeps the padding (``mask``; ``α`` is exactly 0 on padded rows), so every
+jitted function of a fitted model (means, variances, samples, and the continuation and
+Newton solvers built on them) also compiles once per bucket.
 
 Why not tinygp
 --------------
@@ -288,6 +291,11 @@ class GPState(eqx.Module):
 
     Attributes are arrays in raw (unscaled) input units; ``y_scale`` multiplies the
     scaled outputs back; ``monomials`` is static (part of the tree structure).
+
+    The training set is padded to a bucket size (:func:`padded_args`): ``mask`` is 1 on
+    real rows and 0 on padded ones, whose ``alpha`` entries are exactly 0 and whose block
+    of ``chol`` is the identity. Every function of the state compiles once per bucket,
+    not once per training-set size.
     """
 
     theta: Array
@@ -297,6 +305,7 @@ class GPState(eqx.Module):
     x_scale: Array
     x_center: Array
     y_scale: Array
+    mask: Array
     monomials: Monomials = eqx.field(static=True)
 
     @property
@@ -318,6 +327,7 @@ def gp_var(state: GPState, x: Array, *, include_noise: bool = False) -> Array:
     single = x.ndim == 1
     xx = x[None, :] if single else x
     ks = _cov(state.theta, xx, state.x, state.x_scale, state.x_center, state.monomials)
+    ks = ks * state.mask[None, :]
     v = jax.scipy.linalg.solve_triangular(state.chol, ks.T, lower=True)
     kss = _kdiag(state.theta, xx, state.x_scale, state.x_center, state.monomials)
     var = jnp.maximum(kss - jnp.sum(v * v, axis=0), 0.0)
@@ -367,6 +377,46 @@ def sample_eval(state: GPState, sample: GPSamples, x: Array) -> Array:
     ks = _cov(state.theta, xx, state.x, state.x_scale, state.x_center, state.monomials)
     out = (prior + ks @ sample.v) * state.y_scale
     return out[0] if single else out
+
+
+@functools.partial(jax.jit, static_argnames=("monomials",))
+def _posterior(theta, x, y, x_scale, x_center, extra_var, mask, monomials):
+    """Cholesky factor, ``α = K_y⁻¹y``, LOO residuals, fitted values and ``-log p(y)``
+    of a padded training set (one compiled program per bucket and basis)."""
+    ky = _masked_ky(theta, x, mask, extra_var, x_scale, x_center, monomials)
+    chol = jnp.linalg.cholesky(ky)
+    alpha = jax.scipy.linalg.cho_solve((chol, True), y * mask)
+    kinv_diag = jnp.diag(jax.scipy.linalg.cho_solve((chol, True),
+                                                    jnp.eye(x.shape[0], dtype=x.dtype)))
+    loo = alpha / kinv_diag
+    fit = _cov(theta, x, x, x_scale, x_center, monomials) @ alpha
+    n_eff = jnp.sum(mask)
+    nlml = (0.5 * (y * mask) @ alpha + jnp.sum(jnp.log(jnp.diag(chol)))
+            + 0.5 * n_eff * jnp.log(2.0 * jnp.pi))
+    return chol, alpha, loo, fit, nlml
+
+
+@functools.partial(jax.jit, static_argnames=("n_samples", "n_features"))
+def _draw_samples(state: GPState, y_scaled, extra_var, key, n_samples: int,
+                  n_features: int) -> GPSamples:
+    """Pathwise-conditioned posterior function samples (module docstring)."""
+    d = state.n_dim
+    m = len(state.monomials)
+    log_s, log_l, log_t, log_n = _split(state.theta, d, m)
+    k1, k2, k3, k4, k5 = jax.random.split(key, 5)
+    freq = jax.random.normal(k1, (n_samples, n_features, d)) / jnp.exp(log_l)
+    phase = jax.random.uniform(k2, (n_samples, n_features), maxval=2.0 * jnp.pi)
+    weight = (jax.random.normal(k3, (n_samples, n_features))
+              * jnp.exp(log_s) * jnp.sqrt(2.0 / n_features))
+    beta = jax.random.normal(k4, (n_samples, m)) * jnp.exp(log_t)
+    noise_sd = jnp.sqrt(jnp.exp(2.0 * log_n) + extra_var)
+    eps = jax.random.normal(k5, (n_samples, state.x.shape[0])) * noise_sd
+    prior_at_x = jax.vmap(
+        lambda f, p, w, b: _prior_sample_eval(state, f, p, w, b, state.x)
+    )(freq, phase, weight, beta)
+    resid = (y_scaled[None, :] - prior_at_x - eps) * state.mask[None, :]
+    v = jax.scipy.linalg.cho_solve((state.chol, True), resid.T).T
+    return GPSamples(freq=freq, phase=phase, weight=weight, beta=beta, v=v)
 
 
 # ---------------------------------------------------------------------------------------------
@@ -699,33 +749,31 @@ class GPRegressor:
         return self
 
     def _set_state(self, theta, xa, ys_scaled, ev_scaled, xs, xc, ys) -> None:
-        theta = jnp.asarray(theta)
-        x = jnp.asarray(xa)
-        ky = _masked_ky(theta, x, jnp.ones(x.shape[0]), jnp.asarray(ev_scaled),
-                        jnp.asarray(xs), jnp.asarray(xc), self.basis)
-        chol = jnp.linalg.cholesky(ky)
+        n = xa.shape[0]
+        args = padded_args(np.asarray(xa), np.asarray(ys_scaled), np.asarray(ev_scaled),
+                           np.asarray(xs), np.asarray(xc))
+        xp, yp, xs_j, xc_j, evp, mask = args
+        theta = jnp.asarray(theta, dtype=jnp.float64)
+        chol, alpha, loo_scaled, fit_scaled, nlml = _posterior(theta, *args, self.basis)
         if not bool(jnp.all(jnp.isfinite(chol))):
             raise ConvergenceError(
                 "the kernel matrix at the selected hyperparameters is not positive definite."
             )
-        alpha = jax.scipy.linalg.cho_solve((chol, True), jnp.asarray(ys_scaled))
         self.state_ = GPState(
-            theta=theta, x=x, alpha=alpha, chol=chol, x_scale=jnp.asarray(xs),
-            x_center=jnp.asarray(xc), y_scale=jnp.asarray(ys), monomials=self.basis,
+            theta=theta, x=xp, alpha=alpha, chol=chol, x_scale=xs_j, x_center=xc_j,
+            y_scale=jnp.asarray(float(ys)), mask=mask, monomials=self.basis,
         )
-        self.extra_var_ = jnp.asarray(ev_scaled)
-        self._y_scaled = jnp.asarray(ys_scaled)
+        # padded copies (sampling) and the raw training set (persistence, baselines)
+        self._padded = {"y": yp, "extra_var": evp}
+        self.x_train_ = np.asarray(xa, dtype=float)
+        self.y_train_ = np.asarray(ys_scaled, dtype=float) * float(ys)
+        self.extra_var_ = np.asarray(ev_scaled, dtype=float)
         # diagnostics in raw units
-        kinv = jax.scipy.linalg.cho_solve((chol, True), jnp.eye(x.shape[0]))
-        loo_resid = np.asarray(alpha / jnp.diag(kinv)) * ys
+        loo_resid = np.asarray(loo_scaled)[:n] * ys
         self.loo_rmse_ = float(np.sqrt(np.mean(loo_resid**2)))
-        fit = np.asarray(gp_mean(self.state_, x))
-        self.train_rmse_ = float(np.sqrt(np.mean((fit - np.asarray(ys_scaled) * ys) ** 2)))
-        nlml = float(neg_log_marginal_likelihood(
-            theta, x, jnp.asarray(ys_scaled), jnp.asarray(xs), jnp.asarray(xc), self.basis,
-            jnp.asarray(ev_scaled),
-        ))
-        self.log_marginal_likelihood_ = -nlml - x.shape[0] * math.log(ys)
+        resid = (np.asarray(fit_scaled)[:n] - np.asarray(ys_scaled)) * ys
+        self.train_rmse_ = float(np.sqrt(np.mean(resid**2)))
+        self.log_marginal_likelihood_ = -float(nlml) - n * math.log(ys)
 
     # ------------------------------------------------------------------ accessors
     def _check(self) -> None:
@@ -779,25 +827,8 @@ class GPRegressor:
         self._check()
         if n_samples < 1 or n_features < 1:
             raise BifidInputError("n_samples and n_features must be positive.")
-        st = self.state_
-        d = st.n_dim
-        m = len(self.basis)
-        log_s, log_l, log_t, log_n = _split(st.theta, d, m)
-        key = jax.random.PRNGKey(seed)
-        k1, k2, k3, k4, k5 = jax.random.split(key, 5)
-        freq = jax.random.normal(k1, (n_samples, n_features, d)) / jnp.exp(log_l)
-        phase = jax.random.uniform(k2, (n_samples, n_features), maxval=2.0 * jnp.pi)
-        weight = (jax.random.normal(k3, (n_samples, n_features))
-                  * jnp.exp(log_s) * jnp.sqrt(2.0 / n_features))
-        beta = jax.random.normal(k4, (n_samples, m)) * jnp.exp(log_t)
-        noise_sd = jnp.sqrt(jnp.exp(2.0 * log_n) + self.extra_var_)
-        eps = jax.random.normal(k5, (n_samples, st.x.shape[0])) * noise_sd
-        prior_at_x = jax.vmap(
-            lambda f, p, w, b: _prior_sample_eval(st, f, p, w, b, st.x)
-        )(freq, phase, weight, beta)
-        resid = self._y_scaled[None, :] - prior_at_x - eps
-        v = jax.scipy.linalg.cho_solve((st.chol, True), resid.T).T
-        return GPSamples(freq=freq, phase=phase, weight=weight, beta=beta, v=v)
+        return _draw_samples(self.state_, self._padded["y"], self._padded["extra_var"],
+                             jax.random.PRNGKey(seed), int(n_samples), int(n_features))
 
     # ------------------------------------------------------------------ persistence
     def to_arrays(self, prefix: str) -> dict[str, np.ndarray]:
@@ -805,9 +836,9 @@ class GPRegressor:
         self._check()
         st = self.state_
         return {
-            f"{prefix}theta": np.asarray(st.theta), f"{prefix}x": np.asarray(st.x),
-            f"{prefix}y": np.asarray(self._y_scaled), f"{prefix}extra_var":
-            np.asarray(self.extra_var_), f"{prefix}x_scale": np.asarray(st.x_scale),
+            f"{prefix}theta": np.asarray(st.theta), f"{prefix}x": self.x_train_,
+            f"{prefix}y": self.y_train_ / float(st.y_scale), f"{prefix}extra_var":
+            self.extra_var_, f"{prefix}x_scale": np.asarray(st.x_scale),
             f"{prefix}x_center": np.asarray(st.x_center),
             f"{prefix}y_scale": np.asarray(st.y_scale),
             f"{prefix}basis": np.asarray(self.basis, dtype=np.int64).reshape(
@@ -852,8 +883,14 @@ class GPRegressor:
         if basis_arr.size and [list(map(int, r)) for r in basis_arr] != [list(m) for m in gp.basis]:
             raise BifidInputError(f"GP record {prefix!r}: basis arrays and parameters disagree.")
         n, d = a["x"].shape if a["x"].ndim == 2 else (0, 0)
-        if n < 1 or a["y"].shape != (n,) or a["theta"].shape != (2 + d + len(gp.basis),):
+        if (n < 1 or a["y"].shape != (n,) or a["theta"].shape != (2 + d + len(gp.basis),)
+                or a["extra_var"].shape != (n,) or a["x_scale"].shape != (d,)
+                or a["x_center"].shape != (d,) or a["y_scale"].size != 1):
             raise BifidInputError(f"GP record {prefix!r}: inconsistent array shapes.")
+        if not (all(np.all(np.isfinite(v)) for v in a.values())
+                and np.all(a["x_scale"] > 0) and float(a["y_scale"].reshape(-1)[0]) > 0
+                and np.all(a["extra_var"] >= 0)):
+            raise BifidInputError(f"GP record {prefix!r}: non-finite or out-of-range values.")
         gp._set_state(a["theta"], a["x"], a["y"], a["extra_var"], a["x_scale"],
                       a["x_center"], float(a["y_scale"].reshape(-1)[0]))
         gp.notes_ = []
