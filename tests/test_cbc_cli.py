@@ -15,9 +15,13 @@ from bifid.data import load_dataset
 _load_commands()
 RUNNER = CliRunner()
 
+# The coarse grid puts the secant estimate of the unstable LCO (r = 0.3357) near the
+# maximum of Ξ (A* ≈ 0.23), where Newton-Broyden on the polar target cannot start: the
+# scan must fall back to the bracketing secant and still find it.
 HOPF_ARGS = ["hopf", "--protocol", "ppcbc", "--set", "q5=1", "--values=-0.1",
              "--amplitude-range", "0.2", "1.1", "--n-amplitudes", "4", "--measure-periods", "2",
-             "--settle-periods", "5", "--n-harmonics", "3", "--no-truth", "--quiet", "--json"]
+             "--settle-periods", "5", "--n-harmonics", "3", "--sample-rate", "100", "--no-truth",
+             "--quiet", "--json"]
 
 
 def invoke(args):

@@ -7,14 +7,16 @@ r² = (a2 ± sqrt(a2² + 4(μ - μ0)))/2 (− unstable, + stable), folding at μ
 
 from __future__ import annotations
 
+import json
 import math
 import warnings
 
 import numpy as np
 import pytest
 
-from bifid.cbc import VirtualRig
-from bifid.cbc._ppcbc import PPCBCOptions, ppcbc_continuation, ppcbc_scan
+from bifid.cbc import VirtualRig, lco_campaign
+from bifid.cbc._ppcbc import PPCBCOptions, ppcbc_scan
+from bifid.data import load_dataset
 from bifid.errors import ConvergenceWarning
 from bifid.systems import get_system
 
@@ -65,27 +67,34 @@ def test_subcritical_pair_with_noise(hopf):
     assert pts[1].amplitude["u1"] == pytest.approx(r_s, rel=0.03)
 
 
-def test_continuation_round_the_fold(hopf):
-    """Check Newton-Broyden + arclength follows the q5 = 1 branch through its fold.
+def test_campaign_continues_round_the_fold(tmp_path):
+    """Check lco_campaign (scan, then Newton-Broyden + arclength) through the fold.
 
-    Starting on the unstable LCO at μ = -0.1 and moving to smaller μ, the branch folds
-    at μ = -1/4 and returns on the stable side; every point must lie on the analytic
-    curve r⁴ - r² - μ = 0 within 0.5 %.
+    Starting on the unstable LCO at μ = -0.1 and moving to smaller μ, the q5 = 1 branch
+    folds at μ = -1/4 and returns on the stable side; every point must lie on the
+    analytic curve r⁴ - r² - μ = 0 within 0.5 %, and the dataset written point by point
+    must hold exactly the returned points.
     """
-    rig = VirtualRig(hopf, {"mu": -0.1, "q5": 1.0}, sample_rate=100.0)
-    opts = PPCBCOptions(target="polar", stability=False, **OPTS)
-    start, _ = ppcbc_scan(rig, "mu", -0.1, np.linspace(0.2, 0.5, 3), opts)
-    assert len(start) == 1
-    pts, fails = ppcbc_continuation(rig, "mu", start[0], opts, ds=0.5, n_points=6,
-                                    direction=-1, param_scale=0.1)
+    out = tmp_path / "hopf.nc"
+    data, pts, fails = lco_campaign(
+        "hopf", "mu", -0.1, overrides={"q5": 1.0}, amplitudes=[0.2, 0.35, 0.5], n_points=6,
+        ds=0.5, param_scale=0.1, n_harmonics=3, rig_options={"sample_rate": 100.0},
+        options={"stability": False, "settle_periods": 5.0, "measure_periods": 2.0},
+        out=out)
     assert not fails
     assert len(pts) == 6
     mus = np.array([p.param for p in pts])
     rs = np.array([p.amplitude["u1"] for p in pts])
     np.testing.assert_allclose(rs**4 - rs**2 - mus, 0.0, atol=5e-3 * np.max(rs**2))
+    assert rs[0] == pytest.approx(r_lco(-0.1, 1.0)[0], rel=2e-3)  # the scan's first LCO
     assert np.min(mus) < -0.2  # went towards the fold at -0.25 ...
     assert rs[-1] > 1 / math.sqrt(2)  # ... and came back on the stable branch (r² > a2/2)
     assert np.all(np.diff(rs) > 0)
+    saved = load_dataset(out)
+    assert saved.attrs["bifid_kind"] == "lco" and saved.sizes["record"] == 6
+    np.testing.assert_allclose(saved["param"].values, mus)
+    np.testing.assert_allclose(data["param"].values, mus)
+    assert json.loads(saved.attrs["settings"])["protocol"] == "ppcbc-campaign"
 
 
 def test_destabilising_controller_is_reported_not_recorded(hopf):

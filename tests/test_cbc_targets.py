@@ -85,7 +85,7 @@ def test_polar_target_with_a_general_transform():
         for fn, arg in ((PolarTarget.reference, vec), (PolarTarget.fast_reference, aux)):
             r1, r2 = fn(arg, x[0], x[1], 0.0, 0.0)
             assert (float(r1), float(r2)) == pytest.approx(tuple(x), abs=1e-12)
-    ph, r = t.polar(*(np.array([0.001, -0.02])[:, None] + np.asarray(T) @ np.array(
+    _ph, r = t.polar(*(np.array([0.001, -0.02])[:, None] + np.asarray(T) @ np.array(
         [[1.0, 0.0], [0.0, 1.0]])))
     np.testing.assert_allclose(r, 1.0)
     with pytest.raises(BifidInputError, match="invertible"):

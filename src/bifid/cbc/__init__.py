@@ -8,10 +8,13 @@
 - Protocols: :func:`scurve_cbc` and :func:`frc_cbc` (forced systems, §3.2),
   :func:`ppcbc_scan`, :func:`ppcbc_sweep` and :func:`ppcbc_continuation` (self-excited
   systems, §3.3), with their options and point types.
+- Campaigns (rig + protocol + dataset in one call, as ``bifid demo`` runs them):
+  :func:`lco_campaign` (PP-CBC scan + continuation) and :func:`scurve_campaign`.
 - Stability: :func:`switch_off_test` (measured, Fig. 3.18) and :func:`controlled_floquet`
   (Floquet multipliers of the controlled system, Fig. 3.9).
 """
 
+from bifid.cbc._campaign import lco_campaign, scurve_campaign
 from bifid.cbc._controllers import (
     AbstractTarget,
     EllipticTarget,
@@ -66,10 +69,12 @@ __all__ = [
     "defaults_for",
     "folds_of",
     "frc_cbc",
+    "lco_campaign",
     "orbit_polar_target",
     "ppcbc_continuation",
     "ppcbc_scan",
     "ppcbc_sweep",
+    "scurve_campaign",
     "scurve_cbc",
     "switch_off_test",
 ]

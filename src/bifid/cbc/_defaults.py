@@ -82,9 +82,14 @@ _DEFAULTS: dict[str, CBCDefaults] = {
     "flutter": CBCDefaults(
         sample_rate=5000.0, derivative_cutoff=25.0, outputs=("h", "alpha"), x1="h",
         x2="alpha", kp=-150.0, kd=-20.0, bootstrap_gains=(50.0, 40.0),
-        amplitude_range=(0.004, 0.036), n_amplitudes=17, omega_guess=15.0,
+        amplitude_range=(0.004, 0.032), n_amplitudes=15, omega_guess=15.0,
         settle_periods=6.0, measure_periods=4.0,
         signal_units={"h": "m", "alpha": "rad"},
+        # the scan grid ends just above the largest stable LCO (30.5 mm at 17 m/s): targets
+        # far outside it (34 mm at 17 m/s) are not held and the rig trips (a reported failure)
+        # amplitudes of the smallest LCO of the U = 15-17.5 m/s diagram (unstable, 17.5):
+        # "1 % noise" means 1 % of these
+        extra={"noise_reference": {"h": 0.00743, "alpha": 0.02157}},
     ),
     "hopf": CBCDefaults(
         sample_rate=200.0, outputs=("u1", "u2"), x1="u1", x2="u2", kp=1.0, kd=0.0,

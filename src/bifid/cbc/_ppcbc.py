@@ -181,6 +181,11 @@ class LCOPoint:
     invasiveness : float
         ``rms(u) / rms(kp (x1 - x̄1) + kd (x2 - x̄2))``: the control relative to what the
         same gains would apply if the target were the centre.
+    invasiveness_periodic : float
+        The same with ``u`` replaced by its periodic part (mean and ``max(10, n_h)``
+        harmonics of ``ω`` fitted over the record): measurement noise that the controller
+        passes on (``kp ε1 + kd ε2``, zero-mean and broadband) is left out, the
+        deterministic control that would bias the orbit is kept.
     tracking_error : float
         ``rms(x1* - x1) / rms(x1 - x̄1)``.
     residual : float
@@ -203,6 +208,7 @@ class LCOPoint:
     growth: float = math.nan
     control_rms: float = math.nan
     invasiveness: float = math.nan
+    invasiveness_periodic: float = math.nan
     tracking_error: float = math.nan
     residual: float = math.nan
     iterations: int = 0
@@ -220,6 +226,7 @@ class LCOPoint:
             "growth": self.growth,
             "control_rms": self.control_rms,
             "invasiveness": self.invasiveness,
+            "invasiveness_periodic": self.invasiveness_periodic,
             "tracking_error": self.tracking_error,
             "residual": self.residual,
             "iterations": self.iterations,
@@ -538,6 +545,7 @@ def ppcbc_scan(
     omega_guess: float = 1.0,
     on_point: Callable[[LCOPoint], None] | None = None,
     on_iteration: Callable[[int], None] | None = None,
+    max_points: int | None = None,
 ) -> tuple[list[LCOPoint], list[PPCBCFailure]]:
     """All LCOs at one parameter value by the amplitude scan (thesis §3.3.3.2).
 
@@ -559,6 +567,9 @@ def ppcbc_scan(
         Called with each converged (and labelled) point as soon as it exists.
     on_iteration : callable, optional
         Called with the number of rig evaluations so far.
+    max_points : int, optional
+        Stop as soon as this many LCOs are measured, with the rig left holding the last
+        one (e.g. to start :func:`ppcbc_continuation` from it).
 
     Returns
     -------
@@ -613,25 +624,51 @@ def ppcbc_scan(
                 # Picard iteration converges slowly)
                 x0 = (lo.a_star * hi.xi - hi.a_star * lo.xi) / (hi.xi - lo.xi)
                 y0 = np.concatenate([[x0], scan.shape, [value]])
-                if solver is None or solver_J is None:
+                fresh = solver is None or solver_J is None
+                if solver is None:
                     solver = _PolarSolver(rig, opts, fam, param, scan.omega, float(x0),
                                           1.0, None)
+                if fresh:
+                    solver.state["omega"] = scan.omega
                     g0, _ = solver.G(y0)
                     solver_J = solver.jacobian(y0, g0, with_param=False)
                 solver.state["omega"] = scan.omega
-                y, resp, J_new, res = solver.correct(y0, None, solver_J)
-                if y is None:  # a fresh Jacobian at the guess, once
+                br = (lo.a_star, hi.a_star)
+                y, resp, J_new, res = solver.correct(y0, None, solver_J, bracket=br)
+                if y is None and not fresh:  # a fresh Jacobian at the guess, once
+                    solver.state["omega"] = scan.omega
                     g0, _ = solver.G(y0)
                     solver_J = solver.jacobian(y0, g0, with_param=False)
-                    y, resp, J_new, res = solver.correct(y0, None, solver_J)
+                    y, resp, J_new, res = solver.correct(y0, None, solver_J, bracket=br)
                 scan.evals += solver.state["evals"]
                 solver.state["evals"] = 0
                 if on_iteration is not None:
                     on_iteration(scan.evals)
                 if y is None:
-                    fail(f"Newton-Broyden on the polar target did not converge in "
-                         f"{opts.newton_max} iterations near A* = {x0:.4g}", a_star=x0)
+                    # Newton cannot start here (e.g. from near a maximum of Ξ, where its
+                    # Jacobian is singular in a0*): the bracketing secant on a0* with Picard
+                    # on the shape, as for the elliptic target, always can
+                    solver.state["omega"] = scan.omega
                     scan.shape = y0[1:-1]
+                    root, _ = _illinois(scan, lo, hi, opts.amp_tol, opts.secant_max)
+                    if on_iteration is not None:
+                        on_iteration(scan.evals)
+                    if root is None:
+                        fail(f"neither Newton-Broyden on the polar target nor the secant on "
+                             f"its amplitude converged in A* = [{lo.a_star:.4g}, "
+                             f"{hi.a_star:.4g}]", bracket=[lo.a_star, hi.a_star])
+                    else:
+                        try:
+                            pt = _finish_point(rig, opts, fam, root, value,
+                                               scan.evals - n0 + lo.n + hi.n, "scan")
+                        except _Invasive as exc:
+                            fail(f"{exc} (A* = {root.a_star:.4g})", a_star=root.a_star)
+                        else:
+                            points.append(pt)
+                            if on_point is not None:
+                                on_point(pt)
+                        scan.shape = root.shape
+                        solver_J = None  # the last Jacobian did not help: rebuild next time
                 else:
                     solver_J = J_new
                     try:
@@ -645,6 +682,8 @@ def ppcbc_scan(
                         if on_point is not None:
                             on_point(pt)
                     scan.shape = y[1:-1]
+                if (max_points is not None and len(points) >= max_points) or a == grid[-1]:
+                    break  # (nothing left to compare with at the last grid point)
                 evals[-1] = scan(float(a), sign_only=True)
                 continue
             root, _ = _illinois(scan, lo, hi, opts.amp_tol, opts.secant_max)
@@ -665,6 +704,8 @@ def ppcbc_scan(
                     if on_point is not None:
                         on_point(pt)
                 scan.shape = root.shape
+            if (max_points is not None and len(points) >= max_points) or a == grid[-1]:
+                break
             # the rig moved (refinement, stability test): re-settle on this grid point
             evals[-1] = scan(float(a), sign_only=True)
     except ConvergenceError as exc:
@@ -695,10 +736,15 @@ def _make_point(rig, opts, fam, target, resp: _Response, value, residual, n_eval
     x2 = m.signal(opts.x2)
     feedback = opts.kp * (x1 - x1.mean()) + opts.kd * (x2 - x2.mean())
     u_rms = float(np.sqrt(np.mean(m.control**2)))
-    inv = u_rms / max(float(np.sqrt(np.mean(feedback**2))), 1e-300)
+    fb_rms = max(float(np.sqrt(np.mean(feedback**2))), 1e-300)
+    inv = u_rms / fb_rms
+    theta = om * np.arange(len(m)) / m.sample_rate
+    u_fit = evaluate_series(fourier_project(m.control, theta, max(10, opts.n_harmonics)), theta)
+    inv_per = float(np.sqrt(np.mean(u_fit**2))) / fb_rms
     trk = float(np.sqrt(np.mean((m.target - x1) ** 2)) / max(np.std(x1), 1e-300))
     pt = LCOPoint(param=value, target=target, measurement=m, frequency=om, amplitude=amps,
-                  offset=offs, control_rms=u_rms, invasiveness=inv, tracking_error=trk,
+                  offset=offs, control_rms=u_rms, invasiveness=inv,
+                  invasiveness_periodic=inv_per, tracking_error=trk,
                   residual=float(residual), iterations=int(n_evals), branch=branch,
                   signal=opts.x1)
     if not inv <= opts.max_invasiveness:
@@ -812,17 +858,20 @@ class _PolarSolver:
         return J
 
     def correct(self, y_pred: np.ndarray, row: np.ndarray | None, J: np.ndarray,
-                max_step: float = math.inf
+                max_step: float = math.inf, bracket: tuple[float, float] | None = None
                 ) -> tuple[np.ndarray | None, _Response | None, np.ndarray, float]:
         """Converged when ``max|G| <= tol a0`` and the Newton step (the error estimate of
         ``y``) is below ``amp_tol a0``, each plus what the noise floor of ``G`` allows.
         Steps longer than ``max_step`` (weighted norm) are shortened: far from the
         solution a Broyden Jacobian can point anywhere, and the rig must not be sent
-        there."""
+        there. ``bracket`` (amplitude scan): ``a0*`` is kept inside the bracket of the
+        zero; a step that hits its end twice gives up at once (the caller falls back to
+        the bracketing secant)."""
         o, nc, w = self.o, self.nc, self.w
         y = y_pred.copy()
         g, resp = self.G(y)
         Jk = J.copy()
+        hits = 0
         for _ in range(o.newton_max):
             extra = row if row is not None else np.eye(nc + 1)[-1]
             A = np.vstack([Jk, extra[None, :]])
@@ -837,6 +886,14 @@ class _PolarSolver:
             size = math.sqrt(float(dy @ (w * dy)))
             if size > max_step:
                 dy = dy * (max_step / size)
+            if bracket is not None:
+                lo_b, hi_b = bracket
+                a_new = min(max(y[0] + dy[0], lo_b), hi_b)
+                if a_new != y[0] + dy[0]:
+                    hits += 1
+                    if hits >= 2:
+                        return None, resp, Jk, float(np.max(np.abs(g)) / y[0])
+                    dy = dy * ((a_new - y[0]) / dy[0]) if dy[0] != 0 else dy
             y_new = y + dy
             g_new, resp = self.G(y_new)
             dyw = dy * w  # Broyden: J += (Δg - J Δy) Δyᵀ W / (Δyᵀ W Δy)

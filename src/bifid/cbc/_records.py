@@ -77,6 +77,7 @@ def lco_record(pt: LCOPoint, protocol: str):
         "protocol": protocol,
         "branch": pt.branch,
         "invasiveness": _finite(pt.invasiveness),
+        "invasiveness_periodic": _finite(pt.invasiveness_periodic),
         "tracking_error": _finite(pt.tracking_error),
         "residual": _finite(pt.residual),
         "iterations": int(pt.iterations),

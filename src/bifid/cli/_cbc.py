@@ -317,9 +317,11 @@ def _ppcbc(*, system, system_name, rig, dflt, out, resume, overrides, kp, kd, se
                                           "amplitude grid (no LCO in --amplitude-range?)")]
                 failures += fails
         else:
+            # the scan stops at the first LCO with the rig holding it; the continuation
+            # starts from there (as bifid.cbc.lco_campaign does)
             pts, fails = ppcbc_scan(rig, param, float(vals[0]), grid, opts,
                                     omega_guess=omega_guess, on_point=on_point,
-                                    on_iteration=on_iter)
+                                    on_iteration=on_iter, max_points=1)
             evals_total[0] = bars._n
             failures += fails
             start = pts[0] if pts else None
