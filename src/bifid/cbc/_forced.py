@@ -499,7 +499,10 @@ def scurve_cbc(
             ds = min(opts.ds_max, ds * 1.3)
         if new.forcing > hi and new.forcing > prev.forcing:
             break
-        if new.forcing < lo:
+        # back below where the curve started (the forcing of the first converged point can
+        # be well under ``lo`` -- the response bootstrapped at ``lo`` needs less forcing
+        # once the update of eq. 3.6 has converged -- so ``lo`` itself is not the bound)
+        if new.forcing < min(lo, points[0].forcing if points else lo) * (1 - 1e-9):
             break
     return points, failures
 

@@ -116,6 +116,9 @@ def _orbit_json(system, br) -> list[dict[str, Any]]:
                 "stable": bool(br.stable[i]),
                 "floquet_max": br.data["floquet_max"][i],
                 "amplitude": dict(zip(system.states, br.data["amplitude"][i], strict=True)),
+                # about the orbit's mean (what a rig with offsets removed measures)
+                "amplitude_centred": dict(zip(system.states, br.data["amplitude_centred"][i],
+                                              strict=True)),
             }
         )
     return out

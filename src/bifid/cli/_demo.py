@@ -24,8 +24,9 @@ def demo_cmd(
         "--refresh", help="Recompute every stage (default: reuse those whose settings "
         "did not change).")] = False,
     seed: Annotated[int, typer.Option("--seed", help="Seed of noise and training.")] = 0,
-    noise: Annotated[float, typer.Option(
-        "--noise", help="Measurement noise, fraction of each channel's amplitude.")] = 0.01,
+    noise: Annotated[float | None, typer.Option(
+        "--noise", help="Measurement noise, fraction of each channel's amplitude "
+        "(default: flutter 0.01, forced 0).")] = None,
     json_out: Annotated[bool, typer.Option("--json", help="Print one JSON object.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", help="No progress display.")] = False,
 ) -> None:
@@ -36,7 +37,7 @@ def demo_cmd(
     with user_errors():
         if which not in ("flutter", "forced"):
             raise BifidInputError(f"demo must be 'flutter' or 'forced', got {which!r}.")
-        if not (0.0 <= noise < 0.5):
+        if noise is not None and not (0.0 <= noise < 0.5):
             raise BifidInputError(f"--noise must be in [0, 0.5), got {noise!r}.")
         if out.exists() and not out.is_dir():
             raise BifidInputError(f"--out {out} exists and is not a directory.")
@@ -46,13 +47,14 @@ def demo_cmd(
         if which == "flutter":
             from bifid.demo import FlutterDemoSettings, run_flutter_demo
 
-            cfg = FlutterDemoSettings(seed=seed, noise_fraction=noise,
+            cfg = FlutterDemoSettings(seed=seed, noise_fraction=0.01 if noise is None else noise,
                                       model={"n_ensemble": 3, "seed": seed})
             summary = run_flutter_demo(out, cfg, refresh=refresh, progress=not quiet)
         else:
             from bifid.demo import ForcedDemoSettings, run_forced_demo
 
-            cfg = ForcedDemoSettings(seed=seed, noise_fraction=noise)
+            cfg = ForcedDemoSettings(seed=seed, noise_fraction=0.0 if noise is None else noise,
+                                     model={"seed": seed})
             summary = run_forced_demo(out, cfg, refresh=refresh, progress=not quiet)
         payload = {"summary": summary, "report": str(out / "report.html"), "settings": settings}
         from bifid.io import atomic_write_text, jsonable

@@ -261,7 +261,10 @@ def predict_mechanistic(model_dir: Path, options: dict[str, Any]) -> dict[str, A
         "orbits": [
             {"param": float(br.params[i]), "period": float(br.data["period"][i]),
              "stable": bool(br.stable[i]), "floquet_max": float(br.data["floquet_max"][i]),
-             "amplitude": dict(zip(states, map(float, br.data["amplitude"][i]), strict=True))}
+             "amplitude": dict(zip(states, map(float, br.data["amplitude"][i]), strict=True)),
+             # about the orbit's mean: what a rig with offsets removed measures
+             "amplitude_centred": dict(zip(states, map(float, br.data["amplitude_centred"][i]),
+                                           strict=True))}
             for br in branches for i in range(len(br))
         ],
         "complete": all(br.complete for br in branches),

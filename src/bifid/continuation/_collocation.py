@@ -289,6 +289,7 @@ def _orbit_branch(system, param, p, ys, result, options, M, hopf, resolution_tol
                 interval=(float(params[i + offset]), float(params[i + offset + 1])),
                 solution=y_f[: M * n + 1], precision=prec, status="converged",
                 data={"period": float(y_f[M * n]), "amplitude": max_abs(V),
+                      "amplitude_centred": max_abs(V - V.mean(axis=0)),
                       "amplitude_states": list(system.states)},
             )
         )
@@ -305,8 +306,10 @@ def _orbit_branch(system, param, p, ys, result, options, M, hopf, resolution_tol
     return Branch(
         kind="periodic", system=system.name, param=param, params=params,
         solutions=ys[:, : M * n + 1], stable=stable, special_points=specials,
-        data={"period": periods, "amplitude": amps, "floquet": mults, "floquet_max": fmax,
-              "spectral_tail": tails},
+        data={"period": periods, "amplitude": amps,
+              # about the orbit's mean, as a rig measures it (offsets removed)
+              "amplitude_centred": np.array([max_abs(o - o.mean(axis=0)) for o in orbits]),
+              "floquet": mults, "floquet_max": fmax, "spectral_tail": tails},
         p=np.asarray(p), status=result.status, message=result.message, options=options,
         meta={"n_mesh": M, "states": list(system.states), "start_param": hopf.param,
               "start_kind": hopf.kind},

@@ -27,7 +27,7 @@ import numpy as np
 
 from bifid.demo._cache import StageCache, settings_key
 from bifid.demo._progress import Stages
-from bifid.errors import ConvergenceWarning
+from bifid.errors import ConvergenceError, ConvergenceWarning
 
 __all__ = ["FlutterDemoSettings", "run_flutter_demo"]
 
@@ -47,18 +47,25 @@ class FlutterDemoSettings:
         (15.25, False), (15.75, False), (16.25, False), (16.75, False), (17.25, False),
     )
     model: dict[str, Any] = field(default_factory=lambda: {"n_ensemble": 3, "seed": 0})
+    # mechanistic fit (ch. 4): k_a2, k_a3 from a start off by these factors
+    mechanistic: bool = True
+    mechanistic_start: tuple[float, float] = (1.3, 0.7)
 
     def stage_settings(self) -> dict[str, dict[str, Any]]:
         d = asdict(self)
         truth = {"range": d["truth_range"], "tests": d["test_points"], "n_mesh": 64,
                  "speeds": d["speeds"]}
         campaign = {k: d[k] for k in ("speeds", "noise_fraction", "sample_rate", "seed")}
-        return {"truth": truth, "campaign": campaign, "model": dict(d["model"])}
+        mech = {"on": d["mechanistic"], "start": d["mechanistic_start"], "free": ["ka2", "ka3"]}
+        return {"truth": truth, "campaign": campaign, "model": dict(d["model"]),
+                "mechanistic": mech}
 
 
 # thresholds of the error table: issue 5's numbers, doubled because the data are noisy
 CHECKS = {"hopf_U": 0.1, "fold_U": 0.2, "amplitude_rel": 0.06, "frequency_rel": 0.02,
-          "series_rel": 0.10}
+          "series_rel": 0.10,
+          # issue 4's numbers (stated there for noise-free data)
+          "mechanistic_params_rel": 0.02, "mechanistic_U": 0.05}
 
 
 def run_flutter_demo(out: Path, settings: FlutterDemoSettings | None = None, *,
@@ -72,11 +79,15 @@ def run_flutter_demo(out: Path, settings: FlutterDemoSettings | None = None, *,
     st = cfg.stage_settings()
     t_all = time.perf_counter()
     keys = {"truth": settings_key(st["truth"])}
-    keys["campaign"] = settings_key({**st["campaign"], "truth": keys["truth"]})
+    # the campaign uses the truth only for its noise levels (branch amplitudes over the range)
+    keys["campaign"] = settings_key({**st["campaign"], "truth_range": cfg.truth_range})
     keys["model"] = settings_key({**st["model"], "campaign": keys["campaign"]})
+    keys["mechanistic"] = settings_key({**st["mechanistic"], "campaign": keys["campaign"]})
     timings: dict[str, float] = {}
+    stages = ["truth", "campaign", "model", *(["mechanistic"] if cfg.mechanistic else []),
+              "compare"]
 
-    with Stages(["truth", "campaign", "model", "compare"], enabled=progress) as bar:
+    with Stages(stages, enabled=progress) as bar:
         # 1. ground truth
         bar.start("truth", "continuation of the true model")
         t0 = time.perf_counter()
@@ -111,12 +122,46 @@ def run_flutter_demo(out: Path, settings: FlutterDemoSettings | None = None, *,
             cache.done("model", keys["model"], time.perf_counter() - t0)
         timings["model"] = time.perf_counter() - t0
 
+        # 3b. mechanistic identification of the same data (thesis ch. 4)
+        mech = None
+        if cfg.mechanistic:
+            from bifid.demo._mechanistic import (
+                fit_mechanistic,
+                load_mechanistic,
+                write_mechanistic_failure,
+            )
+
+            bar.start("mechanistic", "whole-diagram update of k_a2, k_a3")
+            t0 = time.perf_counter()
+            files = ["mechanistic.json", "mechanistic.npz"]
+            if not cache.fresh("mechanistic", keys["mechanistic"], files):
+                try:
+                    fit_mechanistic(out, data, cfg.mechanistic_start)
+                except ConvergenceError as exc:
+                    # reported in the summary and the report, never hidden; the demo goes on
+                    write_mechanistic_failure(out, str(exc))
+                cache.done("mechanistic", keys["mechanistic"], time.perf_counter() - t0)
+            mech = load_mechanistic(out, truth)
+            timings["mechanistic"] = time.perf_counter() - t0
+
         # 4. comparison, figures, report
         bar.start("compare", "predictions, figures, report")
         t0 = time.perf_counter()
         from bifid.demo._flutter_report import compare, write_report
 
         errors = compare(model, truth, tarr)
+        if mech is not None and mech["summary"].get("failed"):
+            errors["checks"]["mechanistic_params"] = {
+                "value": math.inf, "limit": CHECKS["mechanistic_params_rel"], "unit": "",
+                "passed": False}
+        elif mech is not None:
+            from bifid.demo._flutter_report import _check
+
+            ms = mech["summary"]
+            errors["checks"]["mechanistic_params"] = _check(
+                max(ms["param_rel_error"].values()), CHECKS["mechanistic_params_rel"], "")
+            errors["checks"]["mechanistic_speeds"] = _check(
+                max(ms["hopf_U_error"], ms["fold_U_error"]), CHECKS["mechanistic_U"], "m/s")
         timings["compare"] = time.perf_counter() - t0
         summary = {
             "system": "flutter",
@@ -127,9 +172,10 @@ def run_flutter_demo(out: Path, settings: FlutterDemoSettings | None = None, *,
             "prediction": errors["prediction"],
             "errors": errors["errors"],
             "checks": errors["checks"],
+            "mechanistic": mech["summary"] if mech else None,
             "timings_s": timings,
         }
-        write_report(out, summary, model, data, truth, tarr, errors, cfg,
+        write_report(out, summary, model, data, truth, tarr, errors, cfg, mech,
                      run_time=time.perf_counter() - t_all)
         summary["wall_time_s"] = time.perf_counter() - t_all
         summary["files"] = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))

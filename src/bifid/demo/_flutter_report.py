@@ -90,7 +90,7 @@ def _check(value: float, limit: float, unit: str) -> dict[str, Any]:
 
 
 # ------------------------------------------------------------------------------- figures
-def diagram_figure(model, data, truth, tarr, path: Path) -> Path:
+def diagram_figure(model, data, truth, tarr, path: Path, mech=None) -> Path:
     """Amplitude–speed diagram: truth branch, measured LCOs, model branch and its band."""
     pred = model.predict_diagram((float(truth["fold"]["U"]) - 0.6 if truth["fold"] else 14.0,
                                   float(truth["hopf"]["U"]) + 0.4), n_points=160)
@@ -116,8 +116,15 @@ def diagram_figure(model, data, truth, tarr, path: Path) -> Path:
                 lo = np.asarray(b["min"], dtype=float)
                 hi = np.asarray(b["max"], dtype=float)
                 ax.fill_between(grid, lo, hi, color=color, alpha=0.15, lw=0)
+        if mech is not None and mech["branch"] is not None:
+            b = mech["branch"]
+            for st, ls in ((True, "-"), (False, "--")):
+                m = b["stable"].astype(bool) == st
+                ax.plot(np.where(m, b["U"], np.nan), b[s], color="tab:green", ls=ls, lw=1.4,
+                        alpha=0.9, label="mechanistic fit" if st else None)
         U = data["param"].values
-        amp = data["amplitude"].sel(signal=s).values
+        amp = (data[f"extra_amp_{s}"].values if f"extra_amp_{s}" in data
+               else data["amplitude"].sel(signal=s).values)
         lab = data["stable"].values
         ax.plot(U[lab == 1], amp[lab == 1], "o", color="tab:blue", mec="k", ms=7,
                 label="measured (stable)")
@@ -208,7 +215,7 @@ def series_figure(model, truth, tarr, rows, path: Path) -> Path:
 
 
 # ------------------------------------------------------------------------------- report
-def write_report(out: Path, summary, model, data, truth, tarr, errors, cfg, *,
+def write_report(out: Path, summary, model, data, truth, tarr, errors, cfg, mech=None, *,
                  run_time: float) -> Path:
     """Figures (PNG) and the self-contained ``report.html``."""
     from dataclasses import asdict
@@ -217,7 +224,7 @@ def write_report(out: Path, summary, model, data, truth, tarr, errors, cfg, *,
     from bifid.report.html import Report
 
     figs = {
-        "diagram": diagram_figure(model, data, truth, tarr, out / "diagram.png"),
+        "diagram": diagram_figure(model, data, truth, tarr, out / "diagram.png", mech),
         "portraits": portraits_figure(model, data, out / "portraits.png"),
         "series": series_figure(model, truth, tarr, errors["test_rows"], out / "series.png"),
     }
@@ -239,7 +246,9 @@ def write_report(out: Path, summary, model, data, truth, tarr, errors, cfg, *,
     labels = {"hopf_U": "Hopf speed error", "fold_U": "fold speed error",
               "amplitude_rel": "amplitude error at untrained speeds (max)",
               "frequency_rel": "frequency error at untrained speeds (max)",
-              "series_rel": "one-period time-series RMS error (max)"}
+              "series_rel": "one-period time-series RMS error (max)",
+              "mechanistic_params": "mechanistic fit: k_a2, k_a3 relative error (max)",
+              "mechanistic_speeds": "mechanistic fit: Hopf and fold speed error (max)"}
     chk = errors["checks"]
     sec.append(rep.table(
         ["quantity", "value", "limit"],
@@ -247,7 +256,8 @@ def write_report(out: Path, summary, model, data, truth, tarr, errors, cfg, *,
          for k, v in chk.items()],
         passed=[v["passed"] for v in chk.values()]))
     sec.append(rep.figure(figs["diagram"], "Bifurcation diagram: truth (black), measured LCOs "
-                          "(dots), model (colour; shaded: ensemble band)."))
+                          "(dots), hybrid model (blue/red; shaded: ensemble band), "
+                          "mechanistic fit (green)."))
     sec.append(rep.text("Per test point (untrained speeds, both branches):"))
     sec.append(rep.table(
         ["U [m/s]", "branch", "truth h", "model h", "truth α", "model α", "amp. err",
@@ -269,6 +279,29 @@ def write_report(out: Path, summary, model, data, truth, tarr, errors, cfg, *,
     if fails:
         sec.append(rep.table(["U [m/s]", "reason"],
                              [[f.get("param", "?"), f.get("reason", "")] for f in fails]))
+    if mech is not None and mech["summary"].get("failed"):
+        sec = rep.section("Mechanistic identification of the same data (thesis ch. 4)")
+        sec.append(rep.text("The whole-diagram update of k_a2, k_a3 did not converge: "
+                            + mech["summary"]["failed"]))
+    elif mech is not None:
+        ms = mech["summary"]
+        sec = rep.section("Mechanistic identification of the same data (thesis ch. 4)")
+        sec.append(rep.text(
+            "The physical flutter model with its linear parameters known and the nonlinear "
+            "stiffness coefficients started off by "
+            f"{cfg.mechanistic_start[0]:g}x and {cfg.mechanistic_start[1]:g}x, updated so that "
+            "its continued LCO branch matches every measured LCO (collocation, exact "
+            f"gradients, Levenberg-Marquardt): {ms['iterations']} iterations, "
+            f"{ms['fit_seconds']:.0f} s, RMS heave misfit {1e3 * ms['rms_start_m']:.3f} -> "
+            f"{1e3 * ms['rms_m']:.3f} mm."))
+        sec.append(rep.table(
+            ["parameter", "start", "fitted", "true", "error"],
+            [[k, ms["start"][k], ms["fitted"][k], ms["true"][k], _pct(ms["param_rel_error"][k])]
+             for k in ms["fitted"]]
+            + [["Hopf speed [m/s]", "", ms["hopf_U"], truth["hopf"]["U"],
+                f"{ms['hopf_U_error']:.4f} m/s"],
+               ["fold speed [m/s]", "", ms["fold_U"], truth["fold"]["U"] if truth["fold"]
+                else "", f"{ms['fold_U_error']:.4f} m/s"]]))
     sec = rep.section("Model")
     try:
         params = model.parameters()

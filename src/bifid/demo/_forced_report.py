@@ -92,13 +92,14 @@ def frc_figure(result, data, truth, tarr, path: Path) -> Path:
         c = COLORS[i % len(COLORS)]
         om, a, st = (tarr[f"frc{i}_omega"], tarr[f"frc{i}_amplitude"],
                      tarr[f"frc{i}_stable"].astype(bool))
-        ax.plot(np.where(st, om, np.nan), a, "k-", lw=1.1)
-        ax.plot(np.where(~st, om, np.nan), a, "k--", lw=1.1)
+        ax.plot(np.where(st, om, np.nan), a, "k-", lw=2.6, alpha=0.5,
+                label="truth" if i == 0 else None)
+        ax.plot(np.where(~st, om, np.nan), a, "k--", lw=2.6, alpha=0.5)
         br = result["frc_branches"][i]
         if br is not None:
             _band(ax, br, c)
             ma = np.asarray(br.data["amplitude"])[:, 0]
-            ax.plot(br.data["omega"], ma, color=c, lw=2, alpha=0.85,
+            ax.plot(br.data["omega"], ma, color=c, lw=1.3,
                     label=f"model F = {tf['forcing']:g}")
     bb = result["backbone"]
     ax.plot(tarr["backbone_omega"], tarr["backbone_amplitude"], "k:", lw=1.5,
@@ -106,9 +107,11 @@ def frc_figure(result, data, truth, tarr, path: Path) -> Path:
     ax.plot(bb.data["omega"], bb.params, color="tab:red", lw=1.6, ls="-.",
             label="model backbone")
     om_d, a_d, st_d = data["omega"].values, data["amplitude"].values, data["stable"].values
-    ax.plot(om_d[st_d == 1], a_d[st_d == 1], ".", color="0.3", ms=5, label="measured (stable)")
-    ax.plot(om_d[st_d == 0], a_d[st_d == 0], "x", color="tab:red", ms=5,
-            label="measured (unstable)")
+    ax.plot(om_d[st_d != 0], a_d[st_d != 0], "o", color="0.2", ms=3.5,
+            label="measured by CBC (S-curves)")
+    if np.any(st_d == 0):
+        ax.plot(om_d[st_d == 0], a_d[st_d == 0], "x", color="tab:red", ms=5,
+                label="measured (unstable)")
     lo, hi = tarr["frc0_omega"].min(), tarr["frc0_omega"].max()
     ax.set_xlim(lo, hi)
     top = max(float(np.max(tarr[f"frc{i}_amplitude"])) for i in range(len(truth["frcs"])))

@@ -662,7 +662,8 @@ class OrbitSet:
         params = np.asarray(branch.params)
         sols = np.asarray(branch.solutions)
         stab = np.asarray(branch.stable, dtype=bool)
-        amps = np.asarray(branch.data["amplitude"])[:, self._out[0]]
+        amps = np.asarray(branch.data.get("amplitude_centred", branch.data["amplitude"])
+                          )[:, self._out[0]]
         folds_i = sorted(sp.index for sp in branch.special_points if sp.kind == "cycle_fold")
         hopf_start = branch.meta.get("start_kind") == "hopf"
         fold_i = folds_i[0] if (folds_i and hopf_start and not stab[1]) else None
@@ -791,7 +792,12 @@ class OrbitSet:
         return int(np.sign(t[-1] * np.sign(growth))) or 1
 
     def amplitudes(self, ys: np.ndarray | None = None) -> np.ndarray:
-        """``max_t |v_s(t)|`` of each output at each orbit, shape (n_meas, n_outputs)."""
+        """``max_t |v_s(t) - mean(v_s)|`` of each output at each orbit, (n_meas, n_outputs).
+
+        Centred like the measured signals (a rig's offsets are removed, and the LCOs of a
+        model with even nonlinearities, e.g. ``k_a2``, are not symmetric about the
+        equilibrium: without centring the fit is biased by the orbit's mean shift).
+        """
         ys = self.ys if ys is None else ys
         assert ys is not None
         M, n = self.n_mesh, self.system.n_states
@@ -799,7 +805,7 @@ class OrbitSet:
         for j, y in enumerate(ys):
             V = y[: M * n].reshape(M, n)
             for c, s in enumerate(self._out):
-                out[j, c] = _max_abs_with_weights(V[:, s])[0]
+                out[j, c] = _max_abs_with_weights(V[:, s] - V[:, s].mean())[0]
         return out
 
     def amplitude_jacobian(self, p: np.ndarray, names: Sequence[str]) -> np.ndarray:
@@ -826,8 +832,8 @@ class OrbitSet:
             V = y[: M * n].reshape(M, n)
             dV = dy[: M * n].reshape(M, n, len(cols))
             for c, s in enumerate(self._out):
-                _, w = _max_abs_with_weights(V[:, s])
-                out[j, c] = w @ dV[:, s, :]
+                _, w = _max_abs_with_weights(V[:, s] - V[:, s].mean())
+                out[j, c] = w @ (dV[:, s, :] - dV[:, s, :].mean(axis=0))
         return out
 
 
@@ -980,6 +986,8 @@ def whole_diagram_update(
             if len(matched) == len(sub):
                 break
         else:
+            if g < len(groups) - 1:
+                continue  # an intermediate step of the homotopy: go on with what matched
             raise ConvergenceError(
                 f"After {attempt + 1} attempts the model still lacks {len(sub) - len(matched)} "
                 f"of the measured LCOs at {param} = "
@@ -1057,6 +1065,16 @@ def _schedule(data: LCOData, hopf: float | None) -> list[np.ndarray]:
     sizes = sorted({max(1, math.ceil(n_u / 2)), n_u}) if n_u else []
     groups = [order_u[:k] for k in sizes if k > 0]
     everything = np.arange(len(data))
+    # LCOs at the lowest measured parameter sit next to the fold and exist only once the
+    # fold is in place: fit the others first (the stable ones pull the fold), then all
+    labelled = np.flatnonzero(data.stable >= 0)
+    if labelled.size > 2 and n_u:
+        near_fold = labelled[data.param[labelled] <= np.min(data.param[labelled]) + 1e-9]
+        groups = [np.setdiff1d(g, near_fold) for g in groups]
+        groups = [g for g in groups if g.size]
+        pre = np.setdiff1d(everything, near_fold)
+        if not groups or pre.size > groups[-1].size:
+            groups.append(pre)
     if not groups or groups[-1].size < len(data):
         groups.append(everything)
     return groups
@@ -1654,7 +1672,8 @@ def plot_diagram(
         states = list(br.meta.get("states", []))
         col = states.index(output) if output in states else 0
         x = np.asarray(br.params)
-        y = np.asarray(br.data["amplitude"])[:, col] * scale
+        # centred like the measured signals (see OrbitSet.amplitudes)
+        y = np.asarray(br.data.get("amplitude_centred", br.data["amplitude"]))[:, col] * scale
         st = np.asarray(br.stable, dtype=bool)
         for mask, ls in ((st, "-"), (~st, "--")):
             # extend each segment by one point so the curve is continuous
