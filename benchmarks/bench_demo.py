@@ -43,9 +43,10 @@ def main() -> int:
              "Fresh output directory, each demo in its own process (JIT compilation included; "
              "the persistent compilation cache may be warm), then a second run in the same "
              "directory (every stage reused from the cache). Limit: 10 min on 2 cores.", "",
-             "| demo | first run [s] | truth | campaign | model | compare + report | "
-             "second run [s] | ratio | checks passed | Chromium: figures shown |",
-             "|---|---|---|---|---|---|---|---|---|---|"]
+             "| demo | first run [s] | truth | campaign | model | mechanistic | "
+             "compare + report | second run [s] | ratio | checks passed | "
+             "Chromium: figures shown |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     details = []
     for which in ([args.only] if args.only else ["flutter", "forced"]):
         with tempfile.TemporaryDirectory(prefix=f"bifid-demo-{which}-") as tmp:
@@ -60,7 +61,8 @@ def main() -> int:
                 shown = f"{res['decoded']}/{res['in_html']}"
             lines.append(
                 f"| {which} | {wall1:.0f} | {t['truth']:.0f} | {t['campaign']:.0f} | "
-                f"{t['model']:.0f} | {t['compare']:.0f} | {wall2:.1f} | "
+                f"{t['model']:.0f} | {t.get('mechanistic', 0):.0f} | {t['compare']:.0f} | "
+                f"{wall2:.1f} | "
                 f"{wall1 / wall2:.0f}× | {sum(c['passed'] for c in chk.values())}/{len(chk)} | "
                 f"{shown} |")
             details.append(f"**{which}** errors: " + ", ".join(
