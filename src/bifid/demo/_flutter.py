@@ -36,7 +36,11 @@ __all__ = ["FlutterDemoSettings", "run_flutter_demo"]
 class FlutterDemoSettings:
     """What the flutter demo does (every field enters the cache keys of its stages)."""
 
-    speeds: tuple[float, ...] = (15.0, 15.5, 16.0, 16.5, 17.0, 17.5)
+    speeds: tuple[float, ...] = (15.0, 15.5, 16.0, 16.5, 17.0, 17.5, 17.75)
+    # above this speed only the small unstable LCO is scanned for (targets far outside it,
+    # beyond the stable LCO's basin, trip the rig): the Hopf point is pinned by these
+    small_grid_above: float = 17.4
+    small_grid: tuple[float, float, int] = (0.004, 0.012, 5)
     noise_fraction: float = 0.01
     sample_rate: float = 5000.0
     seed: int = 0
@@ -55,7 +59,8 @@ class FlutterDemoSettings:
         d = asdict(self)
         truth = {"range": d["truth_range"], "tests": d["test_points"], "n_mesh": 64,
                  "speeds": d["speeds"]}
-        campaign = {k: d[k] for k in ("speeds", "noise_fraction", "sample_rate", "seed")}
+        campaign = {k: d[k] for k in ("speeds", "noise_fraction", "sample_rate", "seed",
+                                      "small_grid_above", "small_grid")}
         mech = {"on": d["mechanistic"], "start": d["mechanistic_start"], "free": ["ka2", "ka3"]}
         return {"truth": truth, "campaign": campaign, "model": dict(d["model"]),
                 "mechanistic": mech}
@@ -228,12 +233,14 @@ def _campaign(path: Path, cfg: FlutterDemoSettings, noise: dict[str, float], bar
 
     failures = []
     omega_guess = dflt.omega_guess
+    small = np.linspace(cfg.small_grid[0], cfg.small_grid[1], int(cfg.small_grid[2]))
     for U in cfg.speeds:
         with warnings.catch_warnings():
             # each failure is also returned, recorded in the manifest and listed in the report
             warnings.simplefilter("ignore", ConvergenceWarning)
-            pts, fails = ppcbc_scan(rig, "U", float(U), grid, opts, omega_guess=omega_guess,
-                                    on_point=on_point)
+            pts, fails = ppcbc_scan(rig, "U", float(U),
+                                    small if U > cfg.small_grid_above else grid, opts,
+                                    omega_guess=omega_guess, on_point=on_point)
         if pts:
             omega_guess = pts[-1].frequency
         failures += [f.to_json() for f in fails]
