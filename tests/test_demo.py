@@ -78,3 +78,20 @@ def test_demo_bad_options_exit_2(args, needle, capsys, tmp_path):
     with pytest.raises(SystemExit) as e:
         main(["demo", "flutter", "--out", str(f)])  # --out is a file
     assert e.value.code == 2
+
+
+def test_stage_cache_ensure_builds_once_and_records(tmp_path):
+    """Check ensure() builds a missing stage once, records its facts, and then reuses it."""
+    calls = []
+
+    def build():
+        calls.append(1)
+        (tmp_path / "out.txt").write_text("x")
+        return {"n_points": 7}
+
+    StageCache(tmp_path).ensure("s", "k", ["out.txt"], build)
+    c = StageCache(tmp_path)
+    c.ensure("s", "k", ["out.txt"], build)
+    assert calls == [1] and c.reused == ["s"] and c.info("s")["n_points"] == 7
+    StageCache(tmp_path).ensure("s", "k2", ["out.txt"], build)  # new settings: rebuilt
+    assert calls == [1, 1]

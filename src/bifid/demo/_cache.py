@@ -16,7 +16,7 @@ from __future__ import annotations
 import hashlib
 import json
 import time
-from collections.abc import Iterable, Mapping
+from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -75,6 +75,18 @@ class StageCache:
                                "finished": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
                                **jsonable(info)}
         atomic_write_text(self.path, json.dumps(self.entries, indent=2, sort_keys=True))
+
+    def ensure(self, stage: str, key: str, files: Iterable[str | Path],
+               build: Callable[[], Mapping[str, Any] | None]) -> float:
+        """Run ``build`` unless ``stage`` is fresh; record it; return the seconds spent.
+
+        ``build`` writes the stage's ``files`` and may return facts to keep in the manifest.
+        """
+        t0 = time.perf_counter()
+        if not self.fresh(stage, key, list(files)):
+            info = build() or {}
+            self.done(stage, key, time.perf_counter() - t0, **info)
+        return time.perf_counter() - t0
 
     def info(self, stage: str) -> dict[str, Any]:
         """What was recorded with ``stage`` (empty if nothing)."""

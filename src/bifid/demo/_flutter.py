@@ -27,6 +27,7 @@ import numpy as np
 
 from bifid.demo._cache import StageCache, settings_key
 from bifid.demo._progress import Stages
+from bifid.demo._report_common import check
 from bifid.errors import ConvergenceError, ConvergenceWarning
 
 __all__ = ["FlutterDemoSettings", "run_flutter_demo"]
@@ -95,37 +96,36 @@ def run_flutter_demo(out: Path, settings: FlutterDemoSettings | None = None, *,
     with Stages(stages, enabled=progress) as bar:
         # 1. ground truth
         bar.start("truth", "continuation of the true model")
-        t0 = time.perf_counter()
-        if not cache.fresh("truth", keys["truth"], ["truth.json", "truth.npz"]):
-            flutter_truth(out, cfg.truth_range, cfg.test_points, measured_speeds=cfg.speeds)
-            cache.done("truth", keys["truth"], time.perf_counter() - t0)
+        timings["truth"] = cache.ensure(
+            "truth", keys["truth"], ["truth.json", "truth.npz"],
+            lambda: flutter_truth(out, cfg.truth_range, cfg.test_points,
+                                  measured_speeds=cfg.speeds) and None)
         truth, tarr = load_truth(out)
-        timings["truth"] = time.perf_counter() - t0
 
         # 2. virtual experiment
         bar.start("campaign", "virtual PP-CBC experiment")
-        t0 = time.perf_counter()
-        if not cache.fresh("campaign", keys["campaign"], ["dataset.nc"]):
+
+        def campaign() -> dict[str, Any]:
             noise = _noise_levels(tarr, cfg)
             n, fails = _campaign(out / "dataset.nc", cfg, noise, bar)
-            cache.done("campaign", keys["campaign"], time.perf_counter() - t0, noise=noise,
-                       n_points=n, failures=fails)
-        timings["campaign"] = time.perf_counter() - t0
+            return {"noise": noise, "n_points": n, "failures": fails}
+
+        timings["campaign"] = cache.ensure("campaign", keys["campaign"], ["dataset.nc"],
+                                           campaign)
+        from bifid.data import load_dataset
+
+        data = load_dataset(out / "dataset.nc")
 
         # 3. identification
         bar.start("model", "training the hybrid model")
-        t0 = time.perf_counter()
-        from bifid.data import load_dataset
         from bifid.identify.hopf_hybrid import HopfHybridModel
 
-        data = load_dataset(out / "dataset.nc")
-        if cache.fresh("model", keys["model"], ["model/model.json"]):
-            model = HopfHybridModel.load(out / "model")
-        else:
-            model = HopfHybridModel(**cfg.model).fit(data)
-            model.save(out / "model", settings={"demo": "flutter", **st["model"]})
-            cache.done("model", keys["model"], time.perf_counter() - t0)
-        timings["model"] = time.perf_counter() - t0
+        def fit_model() -> None:
+            HopfHybridModel(**cfg.model).fit(data).save(
+                out / "model", settings={"demo": "flutter", **st["model"]})
+
+        timings["model"] = cache.ensure("model", keys["model"], ["model/model.json"], fit_model)
+        model = HopfHybridModel.load(out / "model")
 
         # 3b. mechanistic identification of the same data (thesis ch. 4)
         mech = None
@@ -137,17 +137,18 @@ def run_flutter_demo(out: Path, settings: FlutterDemoSettings | None = None, *,
             )
 
             bar.start("mechanistic", "whole-diagram update of k_a2, k_a3")
-            t0 = time.perf_counter()
-            files = ["mechanistic.json", "mechanistic.npz"]
-            if not cache.fresh("mechanistic", keys["mechanistic"], files):
+
+            def mechanistic() -> None:
                 try:
                     fit_mechanistic(out, data, cfg.mechanistic_start)
                 except ConvergenceError as exc:
                     # reported in the summary and the report, never hidden; the demo goes on
                     write_mechanistic_failure(out, str(exc))
-                cache.done("mechanistic", keys["mechanistic"], time.perf_counter() - t0)
+
+            timings["mechanistic"] = cache.ensure(
+                "mechanistic", keys["mechanistic"], ["mechanistic.json", "mechanistic.npz"],
+                mechanistic)
             mech = load_mechanistic(out, truth)
-            timings["mechanistic"] = time.perf_counter() - t0
 
         # 4. comparison, figures, report
         bar.start("compare", "predictions, figures, report")
@@ -156,16 +157,13 @@ def run_flutter_demo(out: Path, settings: FlutterDemoSettings | None = None, *,
 
         errors = compare(model, truth, tarr)
         if mech is not None and mech["summary"].get("failed"):
-            errors["checks"]["mechanistic_params"] = {
-                "value": math.inf, "limit": CHECKS["mechanistic_params_rel"], "unit": "",
-                "passed": False}
+            errors["checks"]["mechanistic_params"] = check(math.inf,
+                                                           CHECKS["mechanistic_params_rel"])
         elif mech is not None:
-            from bifid.demo._flutter_report import _check
-
             ms = mech["summary"]
-            errors["checks"]["mechanistic_params"] = _check(
+            errors["checks"]["mechanistic_params"] = check(
                 max(ms["param_rel_error"].values()), CHECKS["mechanistic_params_rel"], "")
-            errors["checks"]["mechanistic_speeds"] = _check(
+            errors["checks"]["mechanistic_speeds"] = check(
                 max(ms["hopf_U_error"], ms["fold_U_error"]), CHECKS["mechanistic_U"], "m/s")
         timings["compare"] = time.perf_counter() - t0
         summary = {

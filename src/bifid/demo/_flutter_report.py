@@ -12,6 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from bifid.demo._report_common import check, finish_report
 from bifid.errors import BifidError
 from bifid.report.plots import STABLE, UNSTABLE, save_figure
 
@@ -75,18 +76,13 @@ def compare(model, truth: dict[str, Any], tarr: dict[str, np.ndarray]) -> dict[s
         err[f"{key}_max"] = max(r[key] for r in rows)
         err[f"{key}_median"] = float(np.median([r[key] for r in rows]))
     checks = {
-        "hopf_U": _check(err["hopf_U"], CHECKS["hopf_U"], "m/s"),
-        "fold_U": _check(err["fold_U"], CHECKS["fold_U"], "m/s"),
-        "amplitude_rel": _check(err["amplitude_rel_max"], CHECKS["amplitude_rel"], ""),
-        "frequency_rel": _check(err["frequency_rel_max"], CHECKS["frequency_rel"], ""),
-        "series_rel": _check(err["series_rel_max"], CHECKS["series_rel"], ""),
+        "hopf_U": check(err["hopf_U"], CHECKS["hopf_U"], "m/s"),
+        "fold_U": check(err["fold_U"], CHECKS["fold_U"], "m/s"),
+        "amplitude_rel": check(err["amplitude_rel_max"], CHECKS["amplitude_rel"], ""),
+        "frequency_rel": check(err["frequency_rel_max"], CHECKS["frequency_rel"], ""),
+        "series_rel": check(err["series_rel_max"], CHECKS["series_rel"], ""),
     }
     return {"prediction": pred, "errors": err, "checks": checks, "test_rows": rows}
-
-
-def _check(value: float, limit: float, unit: str) -> dict[str, Any]:
-    ok = bool(np.isfinite(value) and value <= limit)
-    return {"value": float(value), "limit": limit, "unit": unit, "passed": ok}
 
 
 # ------------------------------------------------------------------------------- figures
@@ -220,7 +216,6 @@ def write_report(out: Path, summary, model, data, truth, tarr, errors, cfg, mech
     """Figures (PNG) and the self-contained ``report.html``."""
     from dataclasses import asdict
 
-    from bifid.io import atomic_write_text
     from bifid.report.html import Report
 
     figs = {
@@ -302,16 +297,8 @@ def write_report(out: Path, summary, model, data, truth, tarr, errors, cfg, mech
                 f"{ms['hopf_U_error']:.4f} m/s"],
                ["fold speed [m/s]", "", ms["fold_U"], truth["fold"]["U"] if truth["fold"]
                 else "", f"{ms['fold_U_error']:.4f} m/s"]]))
-    sec = rep.section("Model")
-    try:
-        params = model.parameters()
-    except BifidError:
-        params = {}
-    sec.append(rep.code({"parameters": params, "timings_s": summary["timings_s"],
-                         "stages reused from cache": summary["stages_reused"]}))
-    html = rep.render(settings={"demo": "flutter", **asdict(cfg)}, run_time_s=run_time)
-    atomic_write_text(out / "report.html", html)
-    return out / "report.html"
+    return finish_report(rep, out, model, summary, {"demo": "flutter", **asdict(cfg)},
+                         run_time)
 
 
 def _campaign_rows(data, truth) -> list[list[Any]]:

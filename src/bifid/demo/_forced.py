@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import math
 import time
+import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any
@@ -22,6 +23,7 @@ import numpy as np
 
 from bifid.demo._cache import StageCache, settings_key
 from bifid.demo._progress import Stages
+from bifid.errors import ConvergenceError, ConvergenceWarning
 
 __all__ = ["ForcedDemoSettings", "run_forced_demo"]
 
@@ -69,37 +71,35 @@ def run_forced_demo(out: Path, settings: ForcedDemoSettings | None = None, *,
     timings: dict[str, float] = {}
     with Stages(["truth", "campaign", "model", "compare"], enabled=progress) as bar:
         bar.start("truth", "continuation of the true model")
-        t0 = time.perf_counter()
-        if not cache.fresh("truth", keys["truth"], ["truth.json", "truth.npz"]):
-            forced_truth(out, cfg.test_forcings, cfg.omega_range, cfg.backbone_range, cfg.omegas,
-                         (0.0, cfg.forcing_range[1]))
-            cache.done("truth", keys["truth"], time.perf_counter() - t0)
+        timings["truth"] = cache.ensure(
+            "truth", keys["truth"], ["truth.json", "truth.npz"],
+            lambda: forced_truth(out, cfg.test_forcings, cfg.omega_range, cfg.backbone_range,
+                                 cfg.omegas, (0.0, cfg.forcing_range[1])) and None)
         truth, tarr = load_truth(out)
-        timings["truth"] = time.perf_counter() - t0
 
         bar.start("campaign", "virtual CBC S-curves")
-        t0 = time.perf_counter()
-        if not cache.fresh("campaign", keys["campaign"], ["dataset.nc"]):
+
+        def campaign() -> dict[str, Any]:
             # noise relative to the smallest response measured (the S-curves' start)
             noise = cfg.noise_fraction * float(np.min(tarr["frc0_amplitude"]))
             n, fails = _campaign(out / "dataset.nc", cfg, noise, bar)
-            cache.done("campaign", keys["campaign"], time.perf_counter() - t0, noise=noise,
-                       n_points=n, failures=fails)
-        timings["campaign"] = time.perf_counter() - t0
+            return {"noise": noise, "n_points": n, "failures": fails}
 
-        bar.start("model", "fitting the kernel model")
-        t0 = time.perf_counter()
+        timings["campaign"] = cache.ensure("campaign", keys["campaign"], ["dataset.nc"],
+                                           campaign)
         from bifid.data import load_dataset
-        from bifid.identify.forced_kernel import ForcedKernelModel
 
         data = load_dataset(out / "dataset.nc")
-        if cache.fresh("model", keys["model"], ["model/model.json"]):
-            model = ForcedKernelModel.load(out / "model")
-        else:
-            model = ForcedKernelModel(**cfg.model).fit(data)
-            model.save(out / "model", settings={"demo": "forced", **st["model"]})
-            cache.done("model", keys["model"], time.perf_counter() - t0)
-        timings["model"] = time.perf_counter() - t0
+
+        bar.start("model", "fitting the kernel model")
+        from bifid.identify.forced_kernel import ForcedKernelModel
+
+        def fit_model() -> None:
+            ForcedKernelModel(**cfg.model).fit(data).save(
+                out / "model", settings={"demo": "forced", **st["model"]})
+
+        timings["model"] = cache.ensure("model", keys["model"], ["model/model.json"], fit_model)
+        model = ForcedKernelModel.load(out / "model")
 
         bar.start("compare", "predictions, figures, report")
         t0 = time.perf_counter()
@@ -129,41 +129,24 @@ def run_forced_demo(out: Path, settings: ForcedDemoSettings | None = None, *,
 
 
 def _campaign(path: Path, cfg: ForcedDemoSettings, noise: float, bar) -> tuple[int, list]:
-    """One CBC S-curve per frequency; each point appended as soon as it converges."""
-    from bifid.cbc import ForcedCBCOptions, VirtualRig, scurve_cbc
-    from bifid.cbc._defaults import defaults_for
-    from bifid.cbc._records import forced_record
-    from bifid.cli._common import run_info
-    from bifid.data import append_record
-    from bifid.systems import get_system
+    """One CBC S-curve per frequency (:func:`bifid.cbc.scurve_campaign`), each point appended
+    to ``path`` as soon as it converges."""
+    from bifid.cbc import scurve_campaign
 
-    system = get_system("shaw_pierre")
-    d = defaults_for("shaw_pierre")
     if path.exists():
-        path.unlink()
-    rig = VirtualRig(system, {}, outputs=d.outputs, sample_rate=d.sample_rate,
-                     noise={d.signal: noise} if noise > 0 else None, seed=cfg.seed)
-    opts = ForcedCBCOptions(signal=d.signal, kp=d.kp, kd=d.kd, n_harmonics=d.n_harmonics,
-                            settle_periods=d.settle_periods, measure_periods=d.measure_periods)
-    settings = run_info("demo forced: campaign", omegas=list(cfg.omegas),
-                        forcing_range=list(cfg.forcing_range), noise=noise, seed=cfg.seed,
-                        options=opts.to_json() if hasattr(opts, "to_json") else str(opts),
-                        rig=rig.describe())
-    ds_kwargs = dict(signal_names=list(rig.output_names), observed=d.signal,
-                     system="shaw_pierre", settings=settings,
-                     source="bifid demo forced (virtual CBC rig)")
+        path.unlink()  # a campaign with other settings: start afresh
     count = [0]
-    failures: list = []
-    for curve, om in enumerate(cfg.omegas):
-        def on_point(pt, curve=curve, om=om) -> None:
-            append_record(path, forced_record(pt, "scurve", curve=curve), **ds_kwargs)
-            count[0] += 1
-            bar.note(f"Ω={om:.4g}: {count[0]} points")
 
-        _pts, fails = scurve_cbc(rig, float(om), cfg.forcing_range, opts, on_point=on_point)
-        failures += [f.to_json() if hasattr(f, "to_json") else str(f) for f in fails]
+    def on_point(pt) -> None:
+        count[0] += 1
+        bar.note(f"Ω={pt.omega:.4g}: {count[0]} points")
+
+    with warnings.catch_warnings():
+        # failures are returned, recorded in the manifest and counted in the report
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        _data, _curves, failures = scurve_campaign(
+            "shaw_pierre", omegas=cfg.omegas, forcing_range=cfg.forcing_range,
+            noise=noise if noise > 0 else None, seed=cfg.seed, out=path, on_point=on_point)
     if count[0] == 0:
-        from bifid.errors import ConvergenceError
-
         raise ConvergenceError("the virtual CBC campaign converged no point at all.")
-    return count[0], failures
+    return count[0], [f.to_json() if hasattr(f, "to_json") else str(f) for f in failures]

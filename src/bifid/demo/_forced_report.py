@@ -12,6 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from bifid.demo._report_common import check, finish_report
 from bifid.errors import BifidError
 from bifid.report.plots import save_figure
 
@@ -58,20 +59,15 @@ def compare(model, truth: dict[str, Any], tarr: dict[str, np.ndarray], cfg) -> d
         "backbone_rel_max": bb_rel,
     }
     checks = {
-        "peak_rel": _check(err["peak_rel_max"], CHECKS["peak_rel"]),
-        "fold_omega_rel": _check(err["fold_omega_rel_max"], CHECKS["fold_omega_rel"]),
-        "backbone_rel": _check(err["backbone_rel_max"], CHECKS["backbone_rel"]),
+        "peak_rel": check(err["peak_rel_max"], CHECKS["peak_rel"]),
+        "fold_omega_rel": check(err["fold_omega_rel_max"], CHECKS["fold_omega_rel"]),
+        "backbone_rel": check(err["backbone_rel_max"], CHECKS["backbone_rel"]),
     }
     pred = {"frcs": [{"forcing": r["forcing"], "peak": r["model_peak"],
                       "folds": r["model_folds"]} for r in rows],
             "forcing_scale": float(getattr(model, "forcing_scale_", math.nan))}
     return {"prediction": pred, "errors": err, "checks": checks, "rows": rows,
             "frc_branches": frcs, "backbone": bb}
-
-
-def _check(value: float, limit: float) -> dict[str, Any]:
-    return {"value": float(value), "limit": limit, "unit": "",
-            "passed": bool(np.isfinite(value) and value <= limit)}
 
 
 def _band(ax, br, color) -> None:
@@ -154,7 +150,6 @@ def write_report(out: Path, summary, model, data, truth, tarr, result, cfg, *,
     """Figures (PNG) and the self-contained ``report.html``."""
     from dataclasses import asdict
 
-    from bifid.io import atomic_write_text
     from bifid.report.html import Report
 
     figs = {"frc": frc_figure(result, data, truth, tarr, out / "frc.png"),
@@ -189,16 +184,8 @@ def write_report(out: Path, summary, model, data, truth, tarr, result, cfg, *,
           _pct(r["fold_omega_rel"])] for r in result["rows"]]))
     sec = rep.section("The virtual experiment")
     sec.append(rep.figure(figs["scurves"], "Measured S-curves over the true ones."))
-    sec = rep.section("Model")
-    try:
-        params = model.parameters()
-    except BifidError:
-        params = {}
-    sec.append(rep.code({"parameters": params, "timings_s": summary["timings_s"],
-                         "stages reused from cache": summary["stages_reused"]}))
-    html = rep.render(settings={"demo": "forced", **asdict(cfg)}, run_time_s=run_time)
-    atomic_write_text(out / "report.html", html)
-    return out / "report.html"
+    return finish_report(rep, out, model, summary, {"demo": "forced", **asdict(cfg)},
+                         run_time)
 
 
 def _pct(v: float) -> str:
