@@ -178,3 +178,134 @@ def test_bad_controller_and_runs(hopf):
         rig.run(-1.0)
     with pytest.raises(BifidInputError, match="frequency"):
         rig.set_forcing(0.1)
+
+
+# -- the two engines (numba loop for built-in systems, JAX scan for any) -----------------
+def _engine_pair(name, params, *, x0, noise, outputs=None, derivative="samples", substeps=1):
+    rigs = [
+        VirtualRig(get_system(name), params, x0=x0, noise=noise, seed=11, engine=eng,
+                   outputs=outputs, derivative=derivative, substeps=substeps,
+                   record_states=True)
+        for eng in ("numba", "jax")
+    ]
+    assert [r.engine for r in rigs] == ["numba", "jax"]
+    return rigs
+
+
+def _assert_same(m_a, m_b, scale):
+    for field in ("outputs", "derivatives", "control", "force"):
+        a, b = getattr(m_a, field), getattr(m_b, field)
+        assert np.allclose(a, b, rtol=0, atol=1e-10 * scale), field
+    assert np.allclose(m_a.extra["states"], m_b.extra["states"], rtol=0, atol=1e-10 * scale)
+    assert np.array_equal(np.isnan(m_a.target), np.isnan(m_b.target))
+    ok = ~np.isnan(m_a.target)
+    assert np.allclose(m_a.target[ok], m_b.target[ok], rtol=0, atol=1e-10 * scale)
+
+
+def test_engines_agree_flutter_polar_target_with_noise():
+    from bifid.cbc import PolarTarget
+
+    rigs = _engine_pair("flutter", {"U": 16.0}, x0=[0.01, 0, 0.02, 0, 0, 0],
+                        noise={"h": 1e-4, "alpha": 3e-4})
+    coef = np.zeros(11)
+    coef[0], coef[2], coef[7] = 0.02, 1e-3, -5e-4
+    target = PolarTarget(coefficients=coef, transform=((1.0, 0.2), (0.5, 3.4)),
+                         origin=(1e-3, -2e-3))
+    ms = []
+    for rig in rigs:
+        rig.set_controller(PDController(-150.0, -20.0, "h", "alpha"), target)
+        first = rig.run(0.3)
+        rig.set_parameter("U", 16.5)  # parameter change between runs, state kept
+        ms.append((first, rig.run(0.7)))
+    _assert_same(ms[0][0], ms[1][0], 0.05)
+    _assert_same(ms[0][1], ms[1][1], 0.05)
+    assert np.std(ms[0][1].control) > 0.1  # the controller really acted
+
+
+@pytest.mark.parametrize("derivative", ["samples", "state"])
+def test_engines_agree_forced_fourier_target(derivative):
+    for name, params, x0, out in [
+        ("duffing", {"F": 0.02}, [0.1, 0.0], "q"),
+        ("shaw_pierre", {"F": 0.01}, [0.1, 0.0, 0.05, 0.0], "x1"),
+    ]:
+        rigs = _engine_pair(name, params, x0=x0, noise=1e-3, derivative=derivative,
+                            substeps=2)
+        target = FourierTarget(coefficients=[0.01, 0.3, 0.02, -0.1, 0.01])
+        ms = []
+        for rig in rigs:
+            rig.set_forcing(0.02, 1.05, phase=0.3)
+            rig.set_controller(PDController(1.0, 0.5, out, out + "_dot"), target)
+            ms.append(rig.run(3.0))
+        _assert_same(ms[0], ms[1], 1.0)
+        assert np.std(ms[0].force) > 0.01
+
+
+def test_engines_agree_hopf_vanderpol_elliptic_target():
+    for name, params, x0, sig in [
+        ("hopf", {"mu": -0.1}, [0.3, 0.0], ("u1", "u2")),
+        ("vanderpol", {"mu": 0.2}, [0.5, 0.0], ("z1", "z1_dot")),
+    ]:
+        rigs = _engine_pair(name, params, x0=x0, noise=2e-3)
+        target = EllipticTarget(amplitude=0.4, omega=1.0 if name == "hopf" else -1.0,
+                                offset=(0.01, 0.0))
+        ms = []
+        for rig in rigs:
+            rig.run(0.5)  # free run, then controlled
+            rig.set_controller(PDController(2.0, 1.0, *sig), target)
+            ms.append(rig.run(2.0))
+        _assert_same(ms[0], ms[1], 1.0)
+
+
+def test_numba_engine_is_the_default_and_falls_back_for_user_systems():
+    import jax.numpy as jnp
+
+    from bifid.systems import Parameter, System
+
+    rig = VirtualRig(get_system("flutter"))
+    assert rig.engine == "numba" and rig.describe()["engine"] == "numba"
+    # a user system (not compiled by numba) runs on the JAX engine, same physics
+    user = System(name="my_hopf_copy", states=("u1", "u2"),
+                  parameters=get_system("hopf").parameters,
+                  field=get_system("hopf").field,
+                  input_direction=lambda p: jnp.array([1.0, 0.0]), default_param="mu")
+    rig_u = VirtualRig(user, {"mu": -0.1}, x0=[0.3, 0.0])
+    assert rig_u.engine == "jax"
+    rig_h = VirtualRig(get_system("hopf"), {"mu": -0.1}, x0=[0.3, 0.0])
+    assert np.allclose(rig_u.run(1.0).outputs, rig_h.run(1.0).outputs, atol=1e-12)
+    with pytest.raises(BifidInputError, match="numba"):
+        VirtualRig(user, engine="numba")
+    with pytest.raises(BifidInputError, match="engine"):
+        VirtualRig(get_system("hopf"), engine="fortran")
+    # a system that borrows a built-in name but not its field: the check catches it
+    impostor = System(name="duffing", states=("q", "qd"),
+                      parameters=(Parameter("zeta", 0.01), Parameter("gamma", 0.5),
+                                  Parameter("F", 0.0), Parameter("Omega", 1.0)),
+                      field=lambda x, p: jnp.stack([x[1], -x[0] - 3.0 * p[1] * x[0] ** 3]),
+                      kind="forced", forcing_direction=lambda p: jnp.array([0.0, 1.0]),
+                      input_direction=lambda p: jnp.array([0.0, 1.0]), default_param="Omega")
+    with pytest.warns(Warning, match="numba field"):
+        rig_i = VirtualRig(impostor)
+    assert rig_i.engine == "jax"
+
+
+def test_numba_engine_reaches_its_speed_target():
+    """Issue 3 §5 asks >= 200x real time on the flutter rig with the controller in the
+    loop (BENCHMARKS.md measures it properly); here a loose floor of 60x, so that a
+    regression to the JAX engine's ~30x fails even on a loaded 2-core machine."""
+    import time
+
+    from bifid.cbc import PolarTarget
+
+    rig = VirtualRig(get_system("flutter"), {"U": 16.0}, x0=[0.01, 0, 0.02, 0, 0, 0],
+                     noise={"h": 1e-4, "alpha": 3e-4})
+    coef = np.zeros(21)
+    coef[0] = 0.02
+    rig.set_controller(PDController(-150.0, -20.0, "h", "alpha"),
+                       PolarTarget(coefficients=coef, scale=(1.0, 3.4)))
+    rig.run(0.1)
+    times = []
+    for _ in range(3):
+        t0 = time.perf_counter()
+        rig.run(10.0)
+        times.append(time.perf_counter() - t0)
+    assert 10.0 / min(times) > 60.0

@@ -9,6 +9,7 @@ periods and average white measurement noise down by ``sqrt(n_samples)``.
 
 from __future__ import annotations
 
+import functools
 import math
 
 import numpy as np
@@ -17,6 +18,7 @@ from bifid.errors import BifidInputError
 
 __all__ = [
     "HarmonicSecant",
+    "band_noise",
     "coefficient_noise",
     "estimate_frequency",
     "evaluate_series",
@@ -41,6 +43,44 @@ def coefficient_noise(residual: np.ndarray) -> float:
         return 0.0
     sigma = float(np.std(np.diff(e))) / math.sqrt(2.0)
     return 3.0 * sigma * math.sqrt(2.0 / e.shape[0])
+
+
+def band_noise(residual: np.ndarray, omega: float, sample_rate: float) -> float:
+    """Noise floor (3σ) of the *fundamental* coefficients fitted to this residual.
+
+    :func:`coefficient_noise` assumes white noise. A control signal is not white: the
+    derivative estimate in ``k_d ẋ`` differentiates the measurement noise, so nearly all
+    of the control's noise power lies far above the forcing frequency, and its total
+    variance overstates the uncertainty of the fundamental coefficient many times over
+    (duffing, 1 % noise, ``k_p = k_d = 0.5`` at 100 Hz: 40-100×, the floor then equals the
+    forcing itself). The variance of a fitted coefficient at ``Ω`` is the noise's power
+    spectral density *near* ``Ω`` over the record length: here it is estimated from the
+    periodogram of the residual (harmonics removed) on the bins of the band ``(0, 2Ω)``
+    other than ``Ω``'s own -- ``2P - 2`` bins for a record of ``P`` periods. A coefficient
+    ``a = (2/n) Re X_k`` has variance ``E|2X_k/n|² / 2``. An unfinished transient raises
+    these bins too: it widens the floor, which the caller must compare with the precision
+    it needs (never read as "within noise, converged").
+
+    Parameters
+    ----------
+    residual : array of shape (n,)
+        Samples minus their fitted Fourier series (uniform sampling, whole periods).
+    omega : float
+        Forcing frequency [rad/s].
+    sample_rate : float
+        [Hz].
+    """
+    e = np.asarray(residual, dtype=float)
+    n = e.shape[0]
+    periods = n * omega / (2.0 * math.pi * sample_rate)
+    if n < 8 or periods < 1.5:
+        return float("inf")
+    X = np.fft.rfft(e) * (2.0 / n)
+    k = np.arange(X.shape[0])
+    band = (k >= 1) & (k < 2.0 * periods - 0.5) & (np.abs(k - periods) >= 0.75)
+    if not np.any(band):
+        return float("inf")
+    return 3.0 * math.sqrt(float(np.mean(np.abs(X[band]) ** 2)) / 2.0)
 
 
 def whole_periods(n_samples: int, omega: float, sample_rate: float, max_periods: int | None = None
@@ -77,13 +117,43 @@ def whole_periods(n_samples: int, omega: float, sample_rate: float, max_periods:
 
 
 def _basis(theta: np.ndarray, n_harmonics: int) -> np.ndarray:
-    k = np.arange(1, n_harmonics + 1)
-    kt = np.outer(theta, k)
-    return np.hstack([np.ones((theta.shape[0], 1)), np.cos(kt), np.sin(kt)])
+    """``[1, cos θ..cos qθ, sin θ..sin qθ]`` per sample.
+
+    Powers of ``e^{iθ}`` by repeated multiplication (error ~k·1e-16) instead of ``2qn``
+    transcendentals: the projections run thousands of times per campaign on records of
+    10^4-10^5 samples, and the trigonometric functions were most of their cost.
+    """
+    n = theta.shape[0]
+    Bt = np.empty((2 * n_harmonics + 1, n))  # rows written contiguously, returned transposed
+    Bt[0] = 1.0
+    if n_harmonics == 0:
+        return Bt.T
+    c1, s1 = np.cos(theta), np.sin(theta)
+    Bt[1], Bt[n_harmonics + 1] = c1, s1
+    for k in range(2, n_harmonics + 1):
+        c, s = Bt[k - 1], Bt[n_harmonics + k - 1]
+        np.subtract(c * c1, s * s1, out=Bt[k])
+        np.add(s * c1, c * s1, out=Bt[n_harmonics + k])
+    return Bt.T
+
+
+def fourier_basis(theta: np.ndarray, n_harmonics: int) -> np.ndarray:
+    """The design matrix ``[1, cos jθ, sin jθ]`` of :func:`fourier_project` (to reuse it)."""
+    return _basis(np.asarray(theta, dtype=float), int(n_harmonics))
+
+
+@functools.lru_cache(maxsize=16)
+def uniform_basis(n_points: int, n_harmonics: int) -> np.ndarray:
+    """:func:`fourier_basis` on ``n_points`` uniform angles of ``[0, 2π)`` (cached, read-only)."""
+    B = _basis(np.linspace(0.0, 2.0 * np.pi, n_points, endpoint=False), n_harmonics)
+    B = np.ascontiguousarray(B)
+    B.setflags(write=False)
+    return B
 
 
 def fourier_project(
-    x: np.ndarray, theta: np.ndarray, n_harmonics: int, weights: np.ndarray | None = None
+    x: np.ndarray, theta: np.ndarray, n_harmonics: int, weights: np.ndarray | None = None,
+    *, basis: np.ndarray | None = None,
 ) -> np.ndarray:
     """Coefficients ``[c0, a_1..a_q, b_1..b_q]`` of ``x ≈ c0 + Σ a_j cos jθ + b_j sin jθ``.
 
@@ -97,14 +167,16 @@ def fourier_project(
     n_harmonics : int
     weights : array of shape (n,), optional
         Quadrature weights (e.g. ``|Δφ|`` for projections over an angle).
+    basis : array of shape (n, 2q+1), optional
+        ``fourier_basis(theta, n_harmonics)`` computed before (e.g. rows of a longer
+        record's basis); ``theta`` is then not used.
 
     Returns
     -------
     ndarray of shape (2q+1,) or (2q+1, m)
     """
-    theta = np.asarray(theta, dtype=float)
     x = np.asarray(x, dtype=float)
-    B = _basis(theta, int(n_harmonics))
+    B = _basis(np.asarray(theta, dtype=float), int(n_harmonics)) if basis is None else basis
     if weights is not None:
         w = np.sqrt(np.asarray(weights, dtype=float))
         B = B * w[:, None]
@@ -119,11 +191,14 @@ def fourier_project(
     return coef
 
 
-def evaluate_series(coef: np.ndarray, theta: np.ndarray) -> np.ndarray:
-    """``c0 + Σ a_j cos jθ + b_j sin jθ`` for ``coef = [c0, a_1..a_q, b_1..b_q]``."""
+def evaluate_series(coef: np.ndarray, theta: np.ndarray, *,
+                    basis: np.ndarray | None = None) -> np.ndarray:
+    """``c0 + Σ a_j cos jθ + b_j sin jθ`` for ``coef = [c0, a_1..a_q, b_1..b_q]``
+    (``basis``: ``fourier_basis(theta, q)`` computed before)."""
     coef = np.asarray(coef, dtype=float)
     q = (coef.shape[0] - 1) // 2
-    return _basis(np.asarray(theta, dtype=float), q) @ coef
+    B = _basis(np.asarray(theta, dtype=float), q) if basis is None else basis
+    return B @ coef
 
 
 def polar_project(phi: np.ndarray, r: np.ndarray, n_harmonics: int) -> np.ndarray:

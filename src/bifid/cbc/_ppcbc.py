@@ -47,9 +47,11 @@ from bifid.cbc._fourier import (
     coefficient_noise,
     estimate_frequency,
     evaluate_series,
+    fourier_basis,
     fourier_project,
     periodic_amplitude,
     polar_project,
+    uniform_basis,
     whole_periods,
 )
 from bifid.cbc._rig import AbstractRig, Measurement
@@ -291,9 +293,9 @@ class _Family:
             rot = 1.0 if (c1[1] * c2[q + 1] - c1[q + 1] * c2[1]) >= 0 else -1.0
             aspect = rot * A2 / max(A1, 1e-300)
             return A1, np.array([aspect, c1[0], c2[0]]), None
-        grid = np.linspace(0.0, 2.0 * np.pi, 2048, endpoint=False)
-        d1 = evaluate_series(c1, grid) - self.origin[0]
-        d2 = evaluate_series(c2, grid) - self.origin[1]
+        grid = uniform_basis(2048, q)  # the fitted curve on 2048 uniform phases
+        d1 = grid @ c1 - self.origin[0]
+        d2 = grid @ c2 - self.origin[1]
         xi1 = self.inv[0, 0] * d1 + self.inv[0, 1] * d2
         xi2 = self.inv[1, 0] * d1 + self.inv[1, 1] * d2
         coef = polar_project(np.arctan2(xi2, xi1), np.hypot(xi1, xi2), self.o.n_harmonics)
@@ -323,9 +325,10 @@ class _Family:
         x1, x2 = x1[-n:], x2[-n:]
         theta = om * np.arange(n) / m.sample_rate
         nfit = max(2 * self.o.n_harmonics, 12) if self.o.target == "polar" else 3
-        c = fourier_project(np.column_stack([x1, x2]), theta, nfit)
+        B = fourier_basis(theta, nfit)  # computed once, its rows reused for every period
+        c = fourier_project(np.column_stack([x1, x2]), theta, nfit, basis=B)
         a0, shape, coef = self._from_fit(c[:, 0], c[:, 1])
-        resid = x1 - evaluate_series(c[:, 0], theta)
+        resid = x1 - B @ c[:, 0]
         floor = coefficient_noise(resid) * float(np.hypot(*self.inv[:, 0]))
         per = 2.0 * math.pi / om * m.sample_rate
         k_per = round(n / per)
@@ -336,7 +339,8 @@ class _Family:
             vals, coefs = [], []
             for k in range(k_per):
                 lo, hi = round(k * per), round((k + 1) * per)
-                ck = fourier_project(np.column_stack([x1[lo:hi], x2[lo:hi]]), theta[lo:hi], nfit)
+                ck = fourier_project(np.column_stack([x1[lo:hi], x2[lo:hi]]), theta[lo:hi],
+                                     nfit, basis=B[lo:hi])
                 a0k, shk, cok = self._from_fit(ck[:, 0], ck[:, 1])
                 vals.append(np.concatenate([[a0k], shk]))
                 coefs.append(cok)

@@ -10,11 +10,21 @@ with the control ``u_k`` held constant (zero-order hold, as a DAC does). At each
 it measures the outputs ``y_k = C x(t_k) + ε_k`` (Gaussian noise per channel), estimates
 their derivatives, evaluates the controller on those *measurements* and saturates it.
 
-Everything per sample happens in one compiled :func:`jax.lax.scan` over a block of
-samples, each sample interval integrated by ``substeps`` classic Runge–Kutta steps (the
-tableau below, checked when built). Targets, gains, parameters and noise levels are
-traced arrays: changing them never re-compiles; compiled blocks are cached per
-(system, outputs, controller signals, target type, derivative mode, sizes).
+Each sample interval is integrated by ``substeps`` classic Runge–Kutta steps (the tableau
+below, checked when built) with the control held. Two engines run the same loop:
+
+- ``"numba"`` (default for the built-in systems): :func:`bifid.cbc._fastloop.run_block`,
+  a loop compiled once by numba (cached on disk), a few hundred ns per sample;
+- ``"jax"`` (any system, e.g. a user-registered one): one compiled :func:`jax.lax.scan`
+  per block of samples. Targets, gains, parameters and noise levels are traced arrays:
+  changing them never re-compiles; compiled blocks are cached per (system, outputs,
+  controller signals, target type, derivative mode, sizes).
+
+Both draw the measurement noise from one seeded :class:`numpy.random.Generator` owned by
+the rig (so a seed gives the same experiment on either engine) and agree sample for
+sample to rounding (tested). The hand-written fixed-step loop replaces diffrax here
+because at one step per sample diffrax's per-step machinery costs more than the step;
+the rig is validated against :func:`bifid.simulate` (diffrax, adaptive Dopri) instead.
 
 Derivative estimates (``"<output>_dot"`` signals):
 
@@ -38,7 +48,13 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bifid.cbc._controllers import AbstractTarget, PDController, target_to_json
+from bifid.cbc import _fastloop
+from bifid.cbc._controllers import (
+    POLAR_TABLE,
+    AbstractTarget,
+    PDController,
+    target_to_json,
+)
 from bifid.cbc._fastfield import PreparedField, check_prepared, prepared_field
 from bifid.cbc._rig import AbstractRig, Measurement
 from bifid.errors import BifidInputError, ConvergenceError, ConvergenceWarning
@@ -115,8 +131,8 @@ def _block_fn(st: _Static) -> Callable:
         i, is_d = sig
         return yd[i] if is_d else y[i]
 
-    def block(carry, dyn, scal):
-        # scal = [theta0, t0, n_valid, block counter]: the only per-block numbers
+    def block(carry, dyn, scal, noise):
+        # scal = [theta0, t0, n_valid]: the only per-block numbers; noise (block, n_out)
         x, yprev, dfilt, uprev = carry
         th0, n_valid = scal[0], scal[2]
         c = st.field.prepare(dyn["p"])
@@ -124,8 +140,6 @@ def _block_fn(st: _Static) -> Callable:
         h = dt / st.substeps
         b, e = dyn["b"], dyn["e"]
         gamma, Om, psi = dyn["gamma"], dyn["Omega"], dyn["psi"]
-        key = jax.random.fold_in(dyn["key"], scal[3].astype(jnp.int32))
-        noise = jax.random.normal(key, (st.block, len(st.outputs))) * dyn["noise"]
         alpha = dyn["alpha"]
         aux = st.target_ref.compile(dyn["target"]) if st.target_ref is not None else None
         # forcing at t_k + δ from cos/sin at t_k by rotation (2 transcendentals per sample)
@@ -206,6 +220,12 @@ def _block_fn(st: _Static) -> Callable:
     return jax.jit(block)
 
 
+@functools.lru_cache(maxsize=32)
+def _batched_field(field: Callable) -> Callable:
+    """``field`` over a batch of states, compiled once per field."""
+    return jax.jit(jax.vmap(field, in_axes=(0, None)))
+
+
 def _noise_vector(noise: Any, names: tuple[str, ...]) -> np.ndarray:
     if noise is None:
         return np.zeros(len(names))
@@ -265,6 +285,9 @@ class VirtualRig(AbstractRig):
         ``block // 8``, so at most that many samples are computed and discarded).
     record_states : bool
         Also return the true states (``Measurement.extra["states"]``), for validation.
+    engine : {"auto", "numba", "jax"}
+        The compiled sample loop (module docstring). ``"auto"``: numba for the built-in
+        systems and targets, JAX otherwise; ``"numba"`` raises if it cannot be used.
 
     Examples
     --------
@@ -292,6 +315,7 @@ class VirtualRig(AbstractRig):
         x0: Sequence[float] | None = None,
         block: int = 4096,
         record_states: bool = False,
+        engine: str = "auto",
     ) -> None:
         if not isinstance(system, System):
             raise BifidInputError(f"system must be a bifid System, got {type(system).__name__}.")
@@ -331,7 +355,15 @@ class VirtualRig(AbstractRig):
         self._seed = int(seed)
         self._n_blocks_run = 0
         self.trips = 0
-        self._key = np.asarray(jax.random.PRNGKey(self._seed))
+        self._rng = np.random.default_rng(self._seed)
+        if engine not in ("auto", "numba", "jax"):
+            raise BifidInputError(f"engine must be 'auto', 'numba' or 'jax', got {engine!r}.")
+        if engine == "numba" and not self._numba_possible(system):
+            raise BifidInputError(
+                f"the numba engine has no compiled field for system {system.name!r} (it has "
+                f"{', '.join(_fastloop.SYSTEM_IDS)}); use engine='jax' or 'auto'."
+            )
+        self._engine_request = engine
         x = np.zeros(system.n_states) if x0 is None else np.asarray(x0, dtype=float)
         if x.shape != (system.n_states,) or not np.all(np.isfinite(x)):
             raise BifidInputError(
@@ -351,10 +383,12 @@ class VirtualRig(AbstractRig):
         self._static_target: tuple[type | None, tuple[int, bool], tuple[int, bool]] = (
             None, (0, False), (0, False))
         self._target_vec = jnp.zeros(1)
+        self._target_packed: np.ndarray | None = None
         self._gains = jnp.zeros(2)
         self._ctrl_on = 0.0
         self._fast, self._generic = prepared_field(system)
         self._field = self._fast
+        self._numba_ok = engine != "jax" and self._numba_possible(system)
         self._check_field()
 
     # -- protocol -----------------------------------------------------------------------
@@ -390,6 +424,19 @@ class VirtualRig(AbstractRig):
         self._p = self._p.copy()
         self._p[i] = v
         self._check_field()
+
+    @property
+    def engine(self) -> str:
+        """The sample loop in use now: ``"numba"`` or ``"jax"``."""
+        if not self._numba_ok:
+            return "jax"
+        if self._target is not None and self._target.kind not in _fastloop.TARGET_KINDS:
+            return "jax"
+        return "numba"
+
+    @staticmethod
+    def _numba_possible(system: System) -> bool:
+        return _fastloop.HAVE_NUMBA and system.name in _fastloop.SYSTEM_IDS
 
     def set_noise(self, noise: float | Sequence[float] | Mapping[str, float] | None) -> None:
         """Change the measurement noise (virtual rigs only)."""
@@ -456,6 +503,11 @@ class VirtualRig(AbstractRig):
         i2 = self.signal_index(controller.x2)
         self._static_target = (type(target), i1, i2)
         self._target_vec = jnp.asarray(target.vector())
+        kind = getattr(target, "kind", "")
+        self._target_packed = (
+            _fastloop.pack_target(kind, target.vector(), POLAR_TABLE)
+            if kind in _fastloop.TARGET_KINDS else None
+        )
         self._gains = jnp.asarray([controller.kp, controller.kd])
         self._ctrl_on = 1.0
         self._controller = controller
@@ -487,6 +539,7 @@ class VirtualRig(AbstractRig):
             "substeps": self._substeps,
             "seed": self._seed,
             "integrator": "classic RK4 per sample interval, zero-order-hold control",
+            "engine": self.engine,
         }
 
     def controller_json(self) -> dict | None:
@@ -504,6 +557,28 @@ class VirtualRig(AbstractRig):
         edir = self.system.input_direction
         e = np.asarray(edir(p), dtype=float) if edir is not None else zeros
         self._directions = (b, e)
+        if self._numba_ok:
+            self._numba_consts = _fastloop.prepare_constants(self.system.name, self._p)
+            if not self._numba_agrees():
+                if self._engine_request == "numba":
+                    raise BifidInputError(
+                        f"the numba field of {self.system.name!r} disagrees with system.field "
+                        "(a re-registered system?); use engine='jax'."
+                    )
+                warnings.warn(
+                    f"the rig's numba field for {self.system.name!r} disagrees with "
+                    "system.field; using the (slower) JAX engine.",
+                    ConvergenceWarning,
+                    stacklevel=3,
+                )
+                self._numba_ok = False
+        self._fast_checked = False  # the JAX engine checks its prepared field when used
+
+    def _ensure_jax_field(self) -> None:
+        """Check the JAX engine's prepared field at the current parameters (once each)."""
+        if self._fast_checked:
+            return
+        self._fast_checked = True
         if self._fast is self._generic:
             return
         scale = np.full(self.system.n_states, 0.1)
@@ -517,6 +592,18 @@ class VirtualRig(AbstractRig):
                 stacklevel=3,
             )
             self._field = self._generic
+
+    def _numba_agrees(self, rtol: float = 1e-9) -> bool:
+        """Does the compiled field equal ``system.field`` at the rig's parameters?"""
+        rng = np.random.default_rng(7)
+        n = self.system.n_states
+        xs = np.vstack([np.zeros((1, n)), rng.normal(size=(4, n)) * 0.1])
+        got = _fastloop.field_batch(_fastloop.SYSTEM_IDS[self.system.name], xs,
+                                    self._numba_consts)
+        ref = np.asarray(_batched_field(self.system.field)(jnp.asarray(xs),
+                                                          jnp.asarray(self._p)))
+        err = np.max(np.abs(got - ref))
+        return bool(np.all(np.isfinite(got)) and err <= rtol * (1e-12 + np.max(np.abs(ref))))
 
     def _trip(self) -> None:
         self._x = jnp.zeros(self.system.n_states)
@@ -547,7 +634,49 @@ class VirtualRig(AbstractRig):
             record_states=self._record_states,
         )
 
-    def _run_samples(self, n: int) -> Measurement:
+    def _draw_noise(self, n: int) -> np.ndarray:
+        if not np.any(self._noise > 0):
+            return np.zeros((n, len(self._outputs)))
+        return self._rng.standard_normal((n, len(self._outputs))) * self._noise
+
+    def _run_numba(self, n: int, eps: np.ndarray, theta: float) -> tuple[np.ndarray, float]:
+        """Advance by n samples with the numba loop; returns packed outputs like the JAX one."""
+        b, e = self._directions
+        dt = 1.0 / self._fs
+        alpha = 1.0 - math.exp(-2.0 * math.pi * self._cutoff * dt)
+        no, ns = len(self._outputs), self.system.n_states
+        x = np.array(self._x, dtype=np.float64)
+        yprev = np.array(self._yprev, dtype=np.float64)
+        dfilt = np.array(self._dfilt, dtype=np.float64)
+        Y, YD = np.empty((n, no)), np.empty((n, no))
+        U, REF = np.empty(n), np.empty(n)
+        XS = np.empty((n, ns)) if self._record_states else np.empty((0, ns))
+        on = self._controller is not None
+        tkind = _fastloop.TARGET_KINDS[self._target.kind] if on else 0
+        tv = self._target_packed if on else np.zeros(1)
+        (_, i1, i2) = self._static_target
+        kp, kd = (float(self._gains[0]), float(self._gains[1])) if on else (0.0, 0.0)
+        uprev, _n_done = _fastloop.run_block(
+            _fastloop.SYSTEM_IDS[self.system.name], self._numba_consts, b, e,
+            x, yprev, dfilt, float(self._uprev), np.asarray(self._out_idx, dtype=np.int64),
+            np.ascontiguousarray(eps, dtype=np.float64),
+            self._forcing_on, float(self._gamma if self._forcing_on else 0.0),
+            float(self._Omega), float(self._psi), float(theta),
+            tkind, tv, i1[0], i1[1], i2[0], i2[1], kp, kd, float(self._ctrl_on),
+            float(self._umax), self._derivative == "state", alpha, dt, self._substeps,
+            self._record_states, Y, YD, U, REF, XS,
+        )
+        self._x = x
+        self._yprev, self._dfilt, self._uprev = yprev, dfilt, uprev
+        cols = [Y, YD, U[:, None], REF[:, None]]
+        if self._record_states:
+            cols.append(XS)
+        theta_end = math.fmod(theta + self._Omega * n * dt, 2.0 * math.pi)
+        return np.concatenate(cols, axis=1), theta_end
+
+    def _run_jax(self, n: int, eps: np.ndarray, theta: float) -> tuple[np.ndarray, float]:
+        """Advance by n samples with compiled ``lax.scan`` blocks."""
+        self._ensure_jax_field()
         big, small = self._block, max(16, self._block // 8)
         b, e = self._directions
         dt = 1.0 / self._fs
@@ -557,27 +686,37 @@ class VirtualRig(AbstractRig):
             "p": np.asarray(self._p), "b": b, "e": e,
             "gamma": np.float64(self._gamma if self._forcing_on else 0.0),
             "Omega": np.float64(self._Omega), "psi": np.float64(self._psi),
-            "noise": self._noise, "alpha": np.float64(alpha),
+            "alpha": np.float64(alpha),
             "target": np.asarray(self._target_vec), "gains": np.asarray(self._gains),
             "ctrl_on": np.float64(self._ctrl_on), "umax": np.float64(self._umax),
-            "key": self._key, "dt": np.float64(dt),
+            "dt": np.float64(dt),
         })
         outs = []
         done = 0
-        theta = self._theta
         k0 = self._k
         while done < n:
             size = big if n - done >= big else small
             fn = _block_fn(self._static(size))
             m = min(size, n - done)
-            scal = np.array([theta, (k0 + done) * dt, m, self._n_blocks_run], dtype=np.float64)
-            carry, o = fn(carry, dyn, scal)
+            scal = np.array([theta, (k0 + done) * dt, m], dtype=np.float64)
+            block_eps = np.zeros((size, len(self._outputs)))
+            block_eps[:m] = eps[done : done + m]
+            carry, o = fn(carry, dyn, scal, block_eps)
             outs.append((m, o))
             self._n_blocks_run += 1
             done += m
             theta = math.fmod(theta + self._Omega * m * dt, 2.0 * math.pi)
         self._x, self._yprev, self._dfilt, self._uprev = carry
-        data = np.concatenate([np.asarray(o)[:m] for m, o in outs])
+        return np.concatenate([np.asarray(o)[:m] for m, o in outs]), theta
+
+    def _run_samples(self, n: int) -> Measurement:
+        dt = 1.0 / self._fs
+        k0 = self._k
+        eps = self._draw_noise(n)
+        if self.engine == "numba":
+            data, theta = self._run_numba(n, eps, self._theta)
+        else:
+            data, theta = self._run_jax(n, eps, self._theta)
         n_out = len(self._outputs)
         y, yd = data[:, :n_out], data[:, n_out : 2 * n_out]
         u, ref = data[:, 2 * n_out], data[:, 2 * n_out + 1]
