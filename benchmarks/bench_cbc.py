@@ -49,12 +49,15 @@ def _polar_target(rng: np.random.Generator) -> PolarTarget:
     return PolarTarget(c, scale=(1.0, 3.3), origin=(0.001, -0.01))
 
 
-def rig_speed(seconds: float, repeats: int) -> dict:
+def rig_speed(seconds: float, repeats: int, engine: str = "numba",
+              noise: dict | None = None) -> dict:
     s = get_system("flutter")
-    rig = defaults_for("flutter").rig(s, {"U": 16.0}, x0=[0.012, 0, 0.04, 0, 0, 0])
+    rig = defaults_for("flutter").rig(s, {"U": 16.0}, x0=[0.012, 0, 0.04, 0, 0, 0],
+                                      engine=engine, noise=noise)
+    assert rig.engine == engine
     rig.set_controller(PDController(KP, KD, "h", "alpha"), _polar_target(np.random.default_rng(0)))
     t0 = time.perf_counter()
-    rig.run(1.0)  # compiles the big block
+    rig.run(1.0)  # compiles (numba: loads its on-disk cache) the big block
     rig.run(0.05)  # and the small one
     compile_s = time.perf_counter() - t0
     times = []

@@ -309,3 +309,32 @@ def test_numba_engine_reaches_its_speed_target():
         rig.run(10.0)
         times.append(time.perf_counter() - t0)
     assert 10.0 / min(times) > 60.0
+
+
+@pytest.mark.parametrize("engine", ["numba", "jax"])
+def test_controller_output_filter(engine):
+    """The applied control is the first-order low-pass of the PD law evaluated on the
+    recorded measurements, u_k = u_{k-1} + a (law_k - u_{k-1}), a = 1 - exp(-2π f_c/f_s);
+    on white measurement noise it keeps the variance fraction a / (2 - a)."""
+    s = get_system("hopf")
+    fs, fc = 200.0, 5.0
+    rig = VirtualRig(s, {"mu": -0.1, "q5": 0.0}, sample_rate=fs, x0=[0.3, 0.0],
+                     noise=0.01, seed=4, engine=engine)
+    target = EllipticTarget(0.3, 1.0)
+    ctrl = PDController(1.0, 0.5, "u1", "u2", filter_hz=fc)
+    rig.set_controller(ctrl, target)
+    m = rig.run(60.0)
+    y1, y2 = m.outputs[:, 0], m.outputs[:, 1]
+    r1, r2 = (np.asarray(v) for v in EllipticTarget.reference(target.vector(), y1, y2, 0, 0))
+    law = 1.0 * (r1 - y1) + 0.5 * (r2 - y2)
+    a = 1.0 - math.exp(-2 * math.pi * fc / fs)
+    assert ctrl.filter_coefficient(fs) == pytest.approx(a)
+    u = m.control
+    assert np.allclose(u[1:], u[:-1] + a * (law[1:] - u[:-1]), rtol=0, atol=1e-12)
+    # noise part of the law (its high-pass residual) is attenuated as predicted
+    noise_law = law - np.convolve(law, np.ones(41) / 41, mode="same")
+    noise_u = u - np.convolve(u, np.ones(41) / 41, mode="same")
+    ratio = np.std(noise_u[100:-100]) / np.std(noise_law[100:-100])
+    assert ratio == pytest.approx(math.sqrt(a / (2 - a)), rel=0.2)
+    with pytest.raises(BifidInputError, match="filter_hz"):
+        PDController(1.0, 0.0, "u1", "u2", filter_hz=-1.0)

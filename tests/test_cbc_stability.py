@@ -59,3 +59,27 @@ def test_switch_off_labels():
                                  nudged_target=EllipticTarget(0.95 * r, 1.0), restore_target=t)
         assert res.stable is expected
         assert (res.growth > 1.0) is (not expected)
+
+
+def test_output_filter_enters_the_controlled_floquet_multipliers():
+    """With an output low-pass the closed loop has one more state (the filter's): one more
+    multiplier, ≈ exp(-2π f_c T), and the others tend to the unfiltered ones as f_c → ∞
+    (the filter's effect is O(ω/ω_c))."""
+    s = get_system("hopf")
+    r = math.sqrt((1 - math.sqrt(1 - 0.4)) / 2)  # the unstable LCO, q5 = 1, mu = -0.1
+    p = np.asarray(s.param_vector(mu=-0.1, q5=1.0))
+    tau = 2 * np.pi * np.arange(64) / 64
+    V = np.stack([r * np.cos(tau), r * np.sin(tau)], axis=1)
+    target = EllipticTarget(r, 1.0)
+    mu0, f0 = controlled_floquet(s, PDController(1.0, 0.0, "u1", "u2"), target, V,
+                                 2 * np.pi, p)
+    errs = []
+    for fc in (1.0, 10.0, 100.0):
+        mu, fmax = controlled_floquet(s, PDController(1.0, 0.0, "u1", "u2", fc), target, V,
+                                      2 * np.pi, p)
+        assert mu.shape == (3,) and mu0.shape == (2,)
+        assert np.min(np.abs(mu - 1.0)) < 1e-6  # trivial multiplier kept
+        assert np.min(np.abs(mu)) < 1e-6  # the filter's own mode, exp(-2π f_c 2π)
+        errs.append(abs(fmax / f0 - 1))
+    assert errs[0] > 0.1  # a 1 Hz filter on a 0.16 Hz orbit changes the loop
+    assert errs[1] < errs[0] / 5 and errs[2] < errs[1] / 5 and errs[2] < 5e-3

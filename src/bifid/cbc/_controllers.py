@@ -374,29 +374,53 @@ class PDController:
     signals: a measured output (``"h"``) or the rig's estimate of its time derivative
     (``"h_dot"``).
 
+    With ``filter_hz`` the law's output passes a first-order low-pass before the
+    actuator, ``u_k = u_{k-1} + a (u_law,k - u_{k-1})``, ``a = 1 - exp(-2π f_c / f_s)``
+    (continuous equivalent ``u̇ = 2π f_c (u_law - u)``). Measurement noise is white up
+    to the Nyquist frequency, so the gains pass it on to the actuator in full; the filter
+    keeps only the fraction ``≈ (π f_c / 2) / (f_s / 2)`` of its power. Being linear and
+    time-invariant it changes nothing at a non-invasive target (``u_law ≡ 0 ⇒ u ≡ 0``);
+    its phase lag at the orbit's frequency must stay small against the loop's margins
+    (checked by :func:`~bifid.cbc.controlled_floquet`, which includes the filter).
+
     Parameters
     ----------
     kp, kd : float
         Proportional and derivative (second-signal) gains.
     x1, x2 : str
         Names of the two measured signals.
+    filter_hz : float, optional
+        Cut-off [Hz] of the output low-pass (None: no filter).
     """
 
     kp: float
     kd: float
     x1: str
     x2: str
+    filter_hz: float | None = None
 
     def __post_init__(self) -> None:
         object.__setattr__(self, "kp", _finite("kp", self.kp))
         object.__setattr__(self, "kd", _finite("kd", self.kd))
+        if self.filter_hz is not None:
+            fc = _finite("filter_hz", self.filter_hz)
+            if fc <= 0:
+                raise BifidInputError(f"filter_hz must be > 0 Hz (or None), got {fc!r}.")
+            object.__setattr__(self, "filter_hz", fc)
         for name in ("x1", "x2"):
             v = getattr(self, name)
             if not isinstance(v, str) or not v:
                 raise BifidInputError(f"{name} must name a rig signal, got {v!r}.")
 
     def to_json(self) -> dict:
-        return {"kp": self.kp, "kd": self.kd, "x1": self.x1, "x2": self.x2}
+        return {"kp": self.kp, "kd": self.kd, "x1": self.x1, "x2": self.x2,
+                "filter_hz": self.filter_hz}
+
+    def filter_coefficient(self, sample_rate: float) -> float:
+        """``a`` of the discrete output filter at ``sample_rate`` (1: no filter)."""
+        if self.filter_hz is None:
+            return 1.0
+        return 1.0 - math.exp(-2.0 * math.pi * self.filter_hz / float(sample_rate))
 
     @staticmethod
     def law(gains: Array, x1: Array, x2: Array, r1: Array, r2: Array) -> Array:

@@ -195,7 +195,7 @@ def _reference(kind, tv, x1, x2, theta, om):
 @_njit
 def run_block(sys_id, c, bvec, evec, x, yprev, dfilt, uprev, out_idx, noise,
               forced, gamma, om, psi, theta0,
-              tkind, tv, s1, s1d, s2, s2d, kp, kd, ctrl_on, umax,
+              tkind, tv, s1, s1d, s2, s2d, kp, kd, ctrl_on, umax, afilt,
               deriv_state, alpha, dt, substeps, record,
               Y, YD, U, REF, XS):
     """Advance the rig by ``noise.shape[0]`` samples (see :mod:`bifid.cbc._virtual`).
@@ -245,6 +245,8 @@ def run_block(sys_id, c, bvec, evec, x, yprev, dfilt, uprev, out_idx, noise,
             x2 = yd[s2] if s2d else y[s2]
             r1, r2 = _reference(tkind, tv, x1, x2, theta, om)
             u = ctrl_on * (kp * (r1 - x1) + kd * (r2 - x2))
+            if afilt < 1.0:  # first-order output low-pass (PDController.filter_hz)
+                u = uprev + afilt * (u - uprev)
             if ctrl_on > 0.0:
                 ref = r1
         if u > umax:

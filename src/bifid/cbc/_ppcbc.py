@@ -111,6 +111,9 @@ class PPCBCOptions:
     bootstrap_gains : (float, float), optional
         ``(kp, kd)`` of an elliptic ``(x1, ẋ1)`` target that starts the oscillation from
         rest (default: the protocol's own plane and gains).
+    filter_hz : float, optional
+        Cut-off of the controller's output low-pass (:class:`~bifid.cbc.PDController`):
+        keeps the gains from passing broadband measurement noise to the actuator.
     """
 
     x1: str = "h"
@@ -132,6 +135,7 @@ class PPCBCOptions:
     nudge: float = 0.05
     watch_periods: float = 20.0
     bootstrap_gains: tuple[float, float] | None = None
+    filter_hz: float | None = None
 
     def __post_init__(self) -> None:
         if self.target not in ("polar", "elliptic"):
@@ -148,11 +152,11 @@ class PPCBCOptions:
         for name in ("picard_max", "secant_max", "newton_max"):
             if int(getattr(self, name)) < 1:
                 raise BifidInputError(f"{name} must be a positive integer.")
-        PDController(self.kp, self.kd, self.x1, self.x2)  # validates gains and names
+        self.controller  # noqa: B018 - validates gains, names and filter
 
     @property
     def controller(self) -> PDController:
-        return PDController(self.kp, self.kd, self.x1, self.x2)
+        return PDController(self.kp, self.kd, self.x1, self.x2, self.filter_hz)
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)
@@ -795,10 +799,14 @@ def ppcbc_sweep(
     on_point: Callable[[LCOPoint], None] | None = None,
     on_iteration: Callable[[int], None] | None = None,
     skip: Callable[[float], bool] | None = None,
+    max_points: int | None = None,
 ) -> tuple[list[LCOPoint], list[PPCBCFailure]]:
     """:func:`ppcbc_scan` at each parameter value in turn (the wind-tunnel protocol).
 
     ``skip(value)`` (e.g. for ``--resume``) skips values already measured.
+    ``max_points``: stop each scan after that many LCOs (e.g. 2 where a stable and an
+    unstable LCO coexist): the grid targets beyond the largest LCO are invasive, and with
+    gains tuned for the orbits the rig may not hold them (it trips, a reported failure).
     """
     points: list[LCOPoint] = []
     failures: list[PPCBCFailure] = []
@@ -807,7 +815,8 @@ def ppcbc_sweep(
         if skip is not None and skip(float(v)):
             continue
         pts, fails = ppcbc_scan(rig, param, float(v), amplitudes, options, omega_guess=omega,
-                                on_point=on_point, on_iteration=on_iteration)
+                                on_point=on_point, on_iteration=on_iteration,
+                                max_points=max_points)
         if pts:
             omega = pts[-1].frequency
         if not pts and not fails:

@@ -187,6 +187,9 @@ def controlled_rhs(system: System, controller: PDController, target: AbstractTar
     parameter vector ``q = [p, kp, kd, γ, Ω, ψ, target.vector()]`` (see
     :func:`augmented_params`), so one compiled function serves every gain and target.
 
+    A controller with an output filter (``filter_hz``) adds its state ``u`` as the last
+    component of ``x``: ``u̇ = 2π f_c (u_law - u)`` and ``e(p) u`` enters the field.
+
     Returns
     -------
     rhs : callable
@@ -195,7 +198,8 @@ def controlled_rhs(system: System, controller: PDController, target: AbstractTar
     """
     s1 = _state_signal(system, controller.x1)
     s2 = _state_signal(system, controller.x2)
-    key = (system.name, id(system.field), s1, s2, target.static_key)
+    wc = None if controller.filter_hz is None else 2.0 * math.pi * controller.filter_hz
+    key = (system.name, id(system.field), s1, s2, target.static_key, wc)
     if key not in _RHS_CACHE:
         n_p = len(system.parameters)
         ref = type(target).reference
@@ -203,7 +207,8 @@ def controlled_rhs(system: System, controller: PDController, target: AbstractTar
         edir = system.input_direction
         f = system.field
 
-        def rhs(x, t, q):
+        def rhs(xa, t, q):
+            x = xa if wc is None else xa[:-1]
             p = q[:n_p]
             kp, kd, gamma, Om, psi = q[n_p], q[n_p + 1], q[n_p + 2], q[n_p + 3], q[n_p + 4]
             tv = q[n_p + 5 :]
@@ -213,7 +218,9 @@ def controlled_rhs(system: System, controller: PDController, target: AbstractTar
             x2 = fx[s2[0]] if s2[1] else x[s2[0]]
             r1, r2 = ref(tv, x1, x2, Om * t, Om)
             u = kp * (r1 - x1) + kd * (r2 - x2)
-            return fx + edir(p) * u
+            if wc is None:
+                return fx + edir(p) * u
+            return jnp.concatenate([fx + edir(p) * xa[-1], (wc * (u - xa[-1]))[None]])
 
         _RHS_CACHE[key] = rhs
     return _RHS_CACHE[key], len(system.parameters)
@@ -299,6 +306,7 @@ def controlled_floquet(
     Returns
     -------
     multipliers : complex ndarray of shape (n,), by decreasing modulus
+        (``n + 1`` with an output filter: its state is part of the closed loop)
     floquet_max : float
         Largest modulus, excluding the trivial multiplier for autonomous systems.
     """
@@ -306,8 +314,16 @@ def controlled_floquet(
 
     rhs, _ = controlled_rhs(system, controller, target)
     q = augmented_params(p, controller, target, forcing)
+    orbit = np.asarray(orbit, dtype=float)
+    steps = 4
+    if controller.filter_hz is not None:  # the filter's output is 0 on a non-invasive orbit
+        orbit = np.column_stack([orbit, np.zeros(orbit.shape[0])])
+        # a fast filter makes the variational equation stiff: keep 2π f_c h <= 1 for the
+        # explicit integrator (powers of two: few distinct compiled step counts)
+        need = 2.0 * math.pi * controller.filter_hz * float(period) / orbit.shape[0]
+        steps = max(4, 1 << math.ceil(math.log2(max(need, 1.0))))
     mults, _, fmax = floquet_multipliers(
-        rhs, np.asarray(orbit, dtype=float)[None], np.array([float(period)]), q[None],
+        rhs, orbit[None], np.array([float(period)]), q[None], steps_per_mesh=steps,
         autonomous=forcing is None,
     )
     return mults[0], float(fmax[0])

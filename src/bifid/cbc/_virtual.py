@@ -176,6 +176,8 @@ def _block_fn(st: _Static) -> Callable:
                 x2 = pick(st.x2, y, yd)
                 r1, r2 = st.target_ref.fast_reference(aux, x1, x2, theta, Om)
                 u = dyn["ctrl_on"] * (dyn["gains"][0] * (r1 - x1) + dyn["gains"][1] * (r2 - x2))
+                # first-order output low-pass (PDController.filter_hz; afilt = 1: none)
+                u = jnp.where(dyn["afilt"] < 1.0, uprev + dyn["afilt"] * (u - uprev), u)
                 ref = jnp.where(dyn["ctrl_on"] > 0, r1, jnp.nan)
             else:
                 u = jnp.zeros(())
@@ -384,6 +386,7 @@ class VirtualRig(AbstractRig):
             None, (0, False), (0, False))
         self._target_vec = jnp.zeros(1)
         self._target_packed: np.ndarray | None = None
+        self._afilt = 1.0
         self._gains = jnp.zeros(2)
         self._ctrl_on = 0.0
         self._fast, self._generic = prepared_field(system)
@@ -509,6 +512,7 @@ class VirtualRig(AbstractRig):
             if kind in _fastloop.TARGET_KINDS else None
         )
         self._gains = jnp.asarray([controller.kp, controller.kd])
+        self._afilt = controller.filter_coefficient(self._fs)
         self._ctrl_on = 1.0
         self._controller = controller
         self._target = target
@@ -663,8 +667,8 @@ class VirtualRig(AbstractRig):
             self._forcing_on, float(self._gamma if self._forcing_on else 0.0),
             float(self._Omega), float(self._psi), float(theta),
             tkind, tv, i1[0], i1[1], i2[0], i2[1], kp, kd, float(self._ctrl_on),
-            float(self._umax), self._derivative == "state", alpha, dt, self._substeps,
-            self._record_states, Y, YD, U, REF, XS,
+            float(self._umax), self._afilt if on else 1.0, self._derivative == "state",
+            alpha, dt, self._substeps, self._record_states, Y, YD, U, REF, XS,
         )
         self._x = x
         self._yprev, self._dfilt, self._uprev = yprev, dfilt, uprev
@@ -689,6 +693,7 @@ class VirtualRig(AbstractRig):
             "alpha": np.float64(alpha),
             "target": np.asarray(self._target_vec), "gains": np.asarray(self._gains),
             "ctrl_on": np.float64(self._ctrl_on), "umax": np.float64(self._umax),
+            "afilt": np.float64(self._afilt if self._controller is not None else 1.0),
             "dt": np.float64(dt),
         })
         outs = []

@@ -146,6 +146,11 @@ def cbc_cmd(
     ] = None,
     kp: Annotated[float | None, Opt("--kp", help="Proportional gain.")] = None,
     kd: Annotated[float | None, Opt("--kd", help="Derivative gain.")] = None,
+    filter_hz: Annotated[
+        float | None,
+        Opt("--filter-hz", help="ppcbc: controller output low-pass [Hz] (0: none; default "
+            "per system, flutter 100)."),
+    ] = None,
     x1: Annotated[str | None, Opt("--x1", help="ppcbc: first phase-plane signal.")] = None,
     x2: Annotated[str | None, Opt("--x2", help="ppcbc: second signal ('h_dot' = dh/dt).")
                   ] = None,
@@ -209,7 +214,8 @@ def cbc_cmd(
         if protocol == "ppcbc":
             _ppcbc(param=param, values=values, prange=prange, n_values=n_values,
                    amplitude_range=amplitude_range, n_amplitudes=n_amplitudes, target=target,
-                   continuation=continuation, omega=omega, x1=x1, x2=x2, **common)
+                   continuation=continuation, omega=omega, x1=x1, x2=x2,
+                   filter_hz=filter_hz, **common)
         else:
             _forced(protocol=protocol, omega=omega, forcing_range=forcing_range,
                     forcing=forcing, omega_range=omega_range, signal=outputs[0], **common)
@@ -217,6 +223,7 @@ def cbc_cmd(
 
 # --------------------------------------------------------------------------------- ppcbc
 def _ppcbc(*, system, system_name, rig, dflt, out, resume, overrides, kp, kd, settle, measure,
+           filter_hz=None,
            tol, stability, n_harmonics, plot, truth, json_out, quiet, seed, noise, derivative,
            ds, param, values, prange, n_values, amplitude_range, n_amplitudes, target,
            continuation, omega, x1, x2) -> None:
@@ -246,6 +253,7 @@ def _ppcbc(*, system, system_name, rig, dflt, out, resume, overrides, kp, kd, se
         kp=dflt.kp if kp is None else kp, kd=dflt.kd if kd is None else kd, target=target,
         n_harmonics=n_harmonics or 10, settle_periods=settle or dflt.settle_periods,
         measure_periods=measure or dflt.measure_periods,
+        filter_hz=dflt.filter_hz if filter_hz is None else (filter_hz or None),
     )
     if dflt.bootstrap_gains is not None and opts_kw["x2"] != f"{opts_kw['x1']}_dot":
         opts_kw["bootstrap_gains"] = dflt.bootstrap_gains
@@ -445,12 +453,20 @@ def _forced(*, system, system_name, rig, dflt, out, resume, overrides, kp, kd, s
     from bifid.cbc._records import forced_record
     from bifid.data import append_record, forced_records, load_dataset
 
+    # noisy S-curves: the system's noisy_options (lower gains, longer records) unless given
+    noisy = protocol == "scurve" and any(
+        float(v) > 0 for v in rig.describe().get("noise", {}).values())
+    nz: dict[str, Any] = dict(dflt.noisy_options) if noisy else {}
     opts_kw: dict[str, Any] = dict(
-        signal=signal, kp=dflt.kp if kp is None else kp, kd=dflt.kd if kd is None else kd,
+        signal=signal, kp=nz.pop("kp", dflt.kp) if kp is None else kp,
+        kd=nz.pop("kd", dflt.kd) if kd is None else kd,
         n_harmonics=n_harmonics or dflt.n_harmonics,
-        settle_periods=settle or dflt.settle_periods,
-        measure_periods=measure or dflt.measure_periods,
+        settle_periods=settle or nz.pop("settle_periods", dflt.settle_periods),
+        measure_periods=measure or nz.pop("measure_periods", dflt.measure_periods),
     )
+    for k in ("kp", "kd", "settle_periods", "measure_periods"):
+        nz.pop(k, None)
+    opts_kw.update(nz)
     if tol is not None:
         opts_kw["tol"] = tol
     if stability is not None:

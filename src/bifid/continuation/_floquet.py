@@ -119,11 +119,13 @@ def floquet_multipliers(
     ps: np.ndarray,
     *,
     autonomous: bool,
+    steps_per_mesh: int = 4,
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Floquet multipliers, stability and the largest non-trivial modulus.
 
     For autonomous orbits the trivial multiplier (closest to 1) is excluded from the
-    stability decision.
+    stability decision. ``steps_per_mesh``: see :func:`monodromy` (raise it for stiff
+    right-hand sides).
 
     Returns
     -------
@@ -132,7 +134,7 @@ def floquet_multipliers(
     floquet_max : array of shape (n_orbits,)
         Largest modulus among the non-trivial multipliers.
     """
-    Phi, ok = monodromy(rhs, orbits, periods, ps)
+    Phi, ok = monodromy(rhs, orbits, periods, ps, steps_per_mesh=steps_per_mesh)
     mults = np.linalg.eigvals(Phi)
     order = np.argsort(-np.abs(mults), axis=1)
     mults = np.take_along_axis(mults, order, axis=1)
