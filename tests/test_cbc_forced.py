@@ -10,6 +10,8 @@ states; the folds are compared with numerical continuation
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 import pytest
 
@@ -17,6 +19,7 @@ from bifid.cbc import VirtualRig
 from bifid.cbc._forced import ForcedCBCOptions, folds_of, scurve_cbc
 from bifid.cbc._truth import correct_forced, forced_orbit_from_samples
 from bifid.continuation import max_abs
+from bifid.errors import ConvergenceWarning
 from bifid.systems import get_system
 
 FOLDS_CONTINUATION = (0.0215934, 0.0109005)
@@ -83,3 +86,102 @@ def test_force_update_matches_eq_3_6_with_exact_derivative():
     B_hat = opts.kp * d[q + 1] - Om * opts.kd * d[1]  # sin part
     assert r.u[1] == pytest.approx(A_hat, rel=1e-3, abs=1e-9)
     assert r.u[q + 1] == pytest.approx(B_hat, rel=1e-3, abs=1e-9)
+
+
+# ------------------------------------------------------------------ measurement noise
+def test_band_noise_is_the_scatter_of_a_fundamental_of_blue_noise():
+    """Check the control's noise floor: 3 × RMS of its fundamental, not of its samples.
+
+    A PD controller fed with white measurement noise ε gives ``u = kp ε + kd ε̇`` -- blue
+    noise, nearly all of its power far above Ω. ``band_noise`` must give 3 × the RMS
+    magnitude of the fitted fundamental ``(a_1, b_1)`` over many records (within 25 %),
+    while the white-noise formula on the samples overstates it > 10× (the cause of the
+    accepted-but-invasive points of noisy S-curves). Part of that scatter enters through
+    the record's ends (``kd (e_n - e_0)/Δt``) and falls on ``a_1`` or ``b_1`` by the end
+    phase: both a whole-sample period (6 s at 100 Hz) and a non-integer one (Ω = 1.05).
+    """
+    from bifid.cbc._fourier import (
+        band_noise,
+        coefficient_noise,
+        evaluate_series,
+        fourier_project,
+    )
+
+    rng = np.random.default_rng(0)
+    fs, kp, kd, sig = 100.0, 0.5, 0.5, 0.01
+    for om in (2 * np.pi / 6.0, 1.05):
+        n = round(6 * 2 * np.pi / om * fs)  # 6 periods
+        theta = om * np.arange(n) / fs + 0.7
+        c1, floors, white = [], [], []
+        for _ in range(300):
+            e = sig * rng.normal(size=n + 1)
+            u = kp * e[1:] + kd * np.diff(e) * fs  # backward-difference derivative
+            c = fourier_project(u, theta, 3)
+            r = u - evaluate_series(c, theta)
+            c1.append((c[1], c[4]))
+            floors.append(band_noise(r, om, fs))
+            white.append(coefficient_noise(r))
+        rms = float(np.sqrt(np.mean(np.sum(np.square(c1), axis=1))))
+        assert np.mean(floors) / 3 == pytest.approx(rms, rel=0.25)
+        assert np.mean(white) / 3 > 10 * rms
+
+
+def _noisy_duffing(gains: float, lo: float, max_points: int, **opts):
+    """A duffing S-curve (Ω = 1.05) with σ = 1 % of its largest amplitude (0.63) on q."""
+    s = get_system("duffing")
+    rig = VirtualRig(s, sample_rate=100.0, noise={"q": 0.0063}, seed=3, record_states=True)
+    o = ForcedCBCOptions(signal="q", kp=gains, kd=gains, n_harmonics=3, settle_periods=20,
+                         measure_periods=3, max_points=max_points, **opts)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        pts, fails = scurve_cbc(rig, 1.05, (lo, 0.03), o)
+    return s, pts, fails, [w for w in caught if issubclass(w.category, ConvergenceWarning)]
+
+
+def _amplitude_error(s, p) -> float:
+    m = p.measurement
+    V = forced_orbit_from_samples(m.extra["states"], m.phase, p.force_phase, n_mesh=32)
+    Vc = correct_forced(s, p.omega, p.forcing, V, n_mesh=32)
+    return abs(p.amplitude / float(max_abs(Vc[:, 0])) - 1.0)
+
+
+def test_noisy_scurve_reports_points_it_cannot_verify():
+    """Check a point whose forcing update is lost in the noise is a failure, not a point.
+
+    High gains (kp = kd = 0.5) at γ = 0.002 with 1 % noise: the controller feeds back a
+    force whose fundamental scatters by ~8 % of γ over 3 periods, and even 60 periods
+    cannot tell the forcing update from zero to 0.5 % of γ. Before the fix the noise floor
+    of the control was that of white noise (~10× γ) and every target was accepted at the
+    first iteration with γ unchanged: this very run recorded 4 points at γ = 0.002 with
+    amplitude errors of 1-430 % (and the low-gain run below 7 points, errors 10-47 %).
+    Now: nothing recorded, one failure that says why, a ConvergenceWarning.
+    """
+    s, pts, fails, warned = _noisy_duffing(0.5, 0.002, 4, max_measure_periods=60.0)
+    for p in pts:  # whatever is recorded must be a verified uncontrolled response
+        assert p.forcing_floor <= 0.005
+        assert _amplitude_error(s, p) < 0.01
+    assert len(fails) == 1 and "noise floor" in fails[0].reason
+    assert warned
+
+
+def test_noisy_scurve_points_are_responses_of_the_uncontrolled_system():
+    """Check noisy S-curve points (1 % noise, low gains) within 1 % of the true responses.
+
+    kp = kd = 0.1 (``defaults_for("duffing").noisy_options``), γ from 0.01 along the
+    lower branch to the upper fold (0.0216): every point's forcing update is verified
+    to 0.5 % of γ (3σ) and its amplitude is within 1 % of the uncontrolled response
+    Newton-corrected at the recorded γ (points where the S-curve is steep -- next to the
+    fold, within 2 % of its γ -- are excluded: there 0.5 % in γ is more than 1 % in A).
+    The run ends on the unstable middle branch.
+    """
+    s, pts, fails, _ = _noisy_duffing(0.1, 0.01, 7)
+    assert not fails and len(pts) == 7
+    assert all(np.diff([p.amplitude for p in pts]) > 0)
+    checked = 0
+    for p in pts:
+        assert p.forcing_floor <= 0.005
+        if min(abs(p.forcing / f - 1.0) for f in FOLDS_CONTINUATION) > 0.02:
+            assert _amplitude_error(s, p) < 0.01
+            checked += 1
+    assert checked >= 5
+    assert 0.32 < pts[-1].amplitude < 0.5  # middle branch (between the folds' amplitudes)

@@ -9,7 +9,6 @@ References are independent of CBC:
 
 from __future__ import annotations
 
-import re
 import warnings
 
 import numpy as np
@@ -58,7 +57,10 @@ def _sweep(noise):
     opts = d.ppcbc_options(measure_periods=8.0 if noise else 4.0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        pts, fails = ppcbc_sweep(rig, "U", U_VALUES[:-1], GRID, opts, omega_guess=15.0)
+        # both LCOs at each U: the scan stops after the second (the targets beyond the
+        # stable LCO are invasive and the rig may trip on them, a reported failure)
+        pts, fails = ppcbc_sweep(rig, "U", U_VALUES[:-1], GRID, opts, omega_guess=15.0,
+                                 max_points=2)
         # 17.5 m/s: the unstable LCO only (issue 3 §5); above ~25 mm the scan's
         # intermediate (invasive) targets are not held there and the rig trips
         more, fails2 = ppcbc_sweep(rig, "U", U_VALUES[-1:], GRID_175, opts,
@@ -79,15 +81,7 @@ def noisy():
 
 def _check_diagram(sweep, tol, noisy=False):
     s, pts, fails, _opts = sweep
-    # a failure may only be a reported rig trip on a target beyond every LCO measured at
-    # its U (with noise: at 17 m/s on the last grid target, 32 mm, 5 % outside the stable
-    # LCO, after that LCO was measured) -- never a missing LCO (checked below)
-    for f in fails:
-        amps = [p.amplitude["h"] for p in pts if p.param == f.param]
-        a_star = float(re.search(r"A\*=([0-9.eE+-]+)", f.reason).group(1).rstrip(":"))
-        assert "tripped" in f.reason and amps and a_star > 1.02 * max(amps), f.reason
-    if not noisy:
-        assert not fails
+    assert not fails
     found = sorted((p.param, p.stable) for p in pts)
     expected = sorted([(u, False) for u in U_VALUES] + [(u, True) for u in U_VALUES[:-1]])
     assert found == expected  # both LCOs at 15-17 m/s, the unstable one at 17.5, labels right
@@ -96,11 +90,12 @@ def _check_diagram(sweep, tol, noisy=False):
         assert pt.stable is stable
         assert pt.amplitude["h"] == pytest.approx(a[0], rel=tol)
         assert pt.amplitude["alpha"] == pytest.approx(a[2], rel=tol)
-        # control RMS below 1 % of the response RMS (same units: the feedback on x1, x2);
-        # with noise the control also carries the measurement noise the gains pass on
-        # (kp ε_h + kd ε_α, ~1.2 % of the feedback at the smallest LCO): its periodic part,
-        # the part that could bias the orbit, must be below 1 %
-        assert (pt.invasiveness_periodic if noisy else pt.invasiveness) < 0.01
+        # control RMS below 1 % of the response RMS (same units: the feedback on x1, x2),
+        # the raw recorded control, noise included: the controller's 100 Hz output filter
+        # keeps the noise the gains pass on at ~0.3 % (~1.2 % without it); its periodic
+        # part, the part that could bias the orbit, stays ~0.1 %
+        assert pt.invasiveness < 0.01
+        assert pt.invasiveness_periodic < 0.005
         assert pt.tracking_error < (0.02 if noisy else 0.01)
     return pts
 
@@ -264,3 +259,78 @@ def test_duffing_gains_stabilise_the_middle_branch():
     _, f_ctrl = controlled_floquet(s, PDController(d.kp, d.kd, "q", "q_dot"), target, V,
                                    2 * np.pi / Om, p, forcing=(F, Om, 0.0))
     assert f_ctrl < 0.5
+
+
+# ------------------------------------------------ S-curves with measurement noise (§5)
+NOISY_SCURVES = {
+    # system: (Ω, forcing range) -- noisy runs start where the forcing update can be
+    # verified to 0.5 % of γ within max_measure_periods (its noise does not shrink with γ)
+    "duffing": (1.05, (0.005, 0.03)),
+    "shaw_pierre": (1.005, (0.006, 0.02)),
+}
+
+
+def _dense_scurve(s, omega, frange):
+    from bifid.continuation import ContinuationOptions, scurve
+
+    br = scurve(s, omega, (frange[0] * 0.5, frange[1] * 1.2), n_mesh=32,
+                options=ContinuationOptions(ds=0.005, ds_min=1e-9, ds_max=0.01,
+                                            max_steps=20000))
+    return (np.asarray(br.data["forcing"]), np.asarray(br.data["observed_amplitude"]),
+            sorted(sp.param for sp in br.special("fold")))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("system", sorted(NOISY_SCURVES))
+@pytest.mark.parametrize("fraction", [0.003, 0.01])
+def test_scurve_with_measurement_noise(system, fraction):
+    """Check §5's S-curve limits with noise σ = 0.3 % / 1 % of the largest response amplitude.
+
+    ``scurve_campaign`` (noisy gains of ``defaults_for``). Against a dense continuation
+    curve: both folds within 2 % in γ; every point within 1 % of the curve (normalised
+    distance ``min √((Δγ/γ)² + (ΔA/A)²)``); and, where the curve is not steep
+    (``|dlnA/dlnγ| <= 2``, i.e. away from the folds, where the amplitude at a fixed γ is
+    well conditioned), the amplitude within 1 % of the uncontrolled response
+    Newton-corrected at the point's own γ. No failure, >= 5 points on the unstable middle
+    branch, every point's forcing update verified to 0.5 % of γ.
+    """
+    from bifid.cbc import scurve_campaign
+
+    omega, frange = NOISY_SCURVES[system]
+    s = get_system(system)
+    sig = defaults_for(system).signal
+    f_br, a_br, folds_ref = _dense_scurve(s, omega, (0.5 * frange[0], frange[1]))
+    sigma = fraction * float(a_br[f_br <= frange[1]].max())
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        _, curves, fails = scurve_campaign(system, omega, frange, noise={sig: sigma}, seed=1,
+                                           rig_options={"record_states": True})
+    pts = curves[0]
+    assert not fails
+    got = folds_of(pts)
+    assert len(got) == 2 and len(folds_ref) == 2
+    np.testing.assert_allclose(sorted(f["forcing"] for f in got), folds_ref, rtol=0.02)
+    lo_a, hi_a = sorted(f["amplitude"] for f in got)
+    assert sum(lo_a < p.amplitude < hi_a for p in pts) >= 5
+    t = np.linspace(0.0, 1.0, 21)[:, None]
+    fd = (f_br[:-1] + t * np.diff(f_br)).ravel()
+    ad = (a_br[:-1] + t * np.diff(a_br)).ravel()
+    obs = s.state_index(sig)
+    n_checked = 0
+    for p in pts:
+        assert p.forcing_floor <= 0.005
+        d = np.min(np.hypot((fd - p.forcing) / p.forcing, (ad - p.amplitude) / p.amplitude))
+        assert d < 0.01, (p.forcing, p.amplitude, d)
+        k = int(np.argmin(np.hypot((f_br - p.forcing) / p.forcing,
+                                   (a_br - p.amplitude) / p.amplitude)))
+        k = min(max(k, 1), len(f_br) - 2)
+        slope = ((np.log(a_br[k + 1]) - np.log(a_br[k - 1]))
+                 / (np.log(f_br[k + 1]) - np.log(f_br[k - 1])))
+        if abs(slope) > 2.0:
+            continue
+        m = p.measurement
+        V = forced_orbit_from_samples(m.extra["states"], m.phase, p.force_phase, n_mesh=32)
+        Vc = correct_forced(s, p.omega, p.forcing, V, n_mesh=32)
+        assert p.amplitude == pytest.approx(float(max_abs(Vc[:, obs])), rel=0.01)
+        n_checked += 1
+    assert n_checked >= len(pts) // 2

@@ -26,7 +26,7 @@ from typing import Any
 import numpy as np
 
 from bifid.cbc._defaults import defaults_for
-from bifid.errors import BifidInputError
+from bifid.errors import BifidInputError, ConvergenceError
 
 __all__ = ["lco_campaign", "scurve_campaign"]
 
@@ -65,7 +65,7 @@ def lco_campaign(
     noise: float | Mapping[str, float] | None = None,
     noise_fraction: float | None = None,
     seed: int = 0,
-    n_harmonics: int = 5,
+    n_harmonics: int = 10,
     options: Mapping[str, Any] | None = None,
     rig_options: Mapping[str, Any] | None = None,
     out: str | Path | None = None,
@@ -207,9 +207,13 @@ def scurve_campaign(
     forcing_range : (float, float)
         Forcing amplitudes ``γ`` the S-curves span.
     noise : float or mapping, optional
-        Measurement noise std (one number or per output).
+        Measurement noise std (one number or per output). With noise the system's
+        ``noisy_options`` (:func:`bifid.cbc.defaults_for`; e.g. lower gains on
+        ``shaw_pierre``) apply before ``options``.
     options : mapping, optional
-        Overrides of :class:`~bifid.cbc.ForcedCBCOptions` fields.
+        Overrides of :class:`~bifid.cbc.ForcedCBCOptions` fields (e.g. ``precision``,
+        ``max_measure_periods``: how precisely each point must be verified against the
+        noise, and the longest record allowed for it).
     rig_options : mapping, optional
         Extra keyword arguments of :class:`~bifid.cbc.VirtualRig`.
     out : path, optional
@@ -222,6 +226,11 @@ def scurve_campaign(
     points : list of list of ForcedPoint
         Per frequency.
     failures : list of ForcedFailure
+
+    Raises
+    ------
+    ConvergenceError
+        If not a single point converged (the failures are in the message).
     """
     from bifid.cbc._forced import ForcedCBCOptions, scurve_cbc
     from bifid.cbc._records import forced_record
@@ -244,6 +253,8 @@ def scurve_campaign(
                               n_harmonics=dflt.n_harmonics,
                               settle_periods=dflt.settle_periods,
                               measure_periods=dflt.measure_periods)
+    if nz and any(v > 0 for v in nz.values()):
+        kw.update(dflt.noisy_options)
     kw.update(dict(options or {}))
     opts = ForcedCBCOptions(**kw)
     settings = _settings(protocol="scurve-campaign", system=system, omegas=oms,
@@ -273,6 +284,9 @@ def scurve_campaign(
             _p, fails = scurve_cbc(rig, w, tuple(forcing_range), opts, on_point=keep)
             failures += fails
             curves.append(pts)
+    if not recs:
+        why = "; ".join(f"Ω={f.omega:g}: {f.reason}" for f in failures) or "no reason given"
+        raise ConvergenceError(f"the S-curve campaign on {system!r} converged no point ({why}).")
     data = forced_dataset(recs, **ds_kwargs)
     return data, curves, failures
 

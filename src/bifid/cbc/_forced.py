@@ -43,6 +43,7 @@ import numpy as np
 from bifid.cbc._controllers import FourierTarget, PDController
 from bifid.cbc._fourier import (
     HarmonicSecant,
+    band_noise,
     coefficient_noise,
     evaluate_series,
     fourier_project,
@@ -92,6 +93,19 @@ class ForcedCBCOptions:
     stability : bool
         Label points by switching the controller off (slow for lightly damped rigs).
     watch_periods : float
+    precision : float
+        Largest accepted noise floor (3σ, relative): of the forcing update ``|J⁻¹ u_1|``
+        against ``γ`` and of the response's fundamental against ``A_1^*``. A point whose
+        control is "zero within noise" is only as good as that noise floor; while the floor
+        is above ``precision`` the record is extended (the rig keeps running, no
+        re-settling) up to ``max_measure_periods``, and if it is still above, the point is a
+        reported failure -- never recorded. Noise-free the floors are ~1e-8 and this never
+        acts.
+    max_measure_periods : float
+        Longest record (forcing periods) one evaluation may grow to for ``precision``.
+    stored_periods : float
+        A point keeps (and a dataset stores) the last ``stored_periods`` periods of its
+        record; its coefficients and amplitude come from the whole record.
     """
 
     signal: str = "q"
@@ -110,15 +124,24 @@ class ForcedCBCOptions:
     watch_periods: float = 40.0
     nudge: float = 0.05
     max_turn: float = 12.0
+    precision: float = 0.005
+    max_measure_periods: float = 400.0
+    stored_periods: float = 20.0
 
     def __post_init__(self) -> None:
         if int(self.n_harmonics) < 1:
             raise BifidInputError(f"n_harmonics must be >= 1, got {self.n_harmonics!r}.")
         for name in ("settle_periods", "measure_periods", "tol", "ds", "ds_max",
-                     "watch_periods"):
+                     "watch_periods", "precision", "max_measure_periods",
+                     "stored_periods"):
             v = getattr(self, name)
             if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
                 raise BifidInputError(f"{name} must be a positive number, got {v!r}.")
+        if self.max_measure_periods < self.measure_periods:
+            raise BifidInputError(
+                f"max_measure_periods ({self.max_measure_periods}) must be at least "
+                f"measure_periods ({self.measure_periods})."
+            )
         if self.ds > self.ds_max:
             raise BifidInputError(f"ds ({self.ds}) must not exceed ds_max ({self.ds_max}).")
         for name in ("picard_max", "max_points", "newton_max"):
@@ -146,6 +169,7 @@ class ForcedPoint:
     coefficients : ndarray
         Measured response ``p = [A0, A1..Aq, B1..Bq]`` (eq. 3.4 ordering).
     measurement : Measurement
+        The record (its last ``stored_periods`` periods when longer).
     amplitude : float
         ``max_t |x(t)|`` of the observed signal (Fourier-filtered).
     phase : float
@@ -156,6 +180,11 @@ class ForcedPoint:
     residual : float
         ``max |p* - p| / A_1^*`` at convergence.
     iterations : int
+    forcing_floor : float
+        Noise floor (3σ) of the last forcing update relative to ``γ`` (S-curves): how
+        precisely non-invasiveness was verified (0 without noise up to round-off).
+    measured_periods : float
+        Forcing periods in the record the point was accepted on.
     """
 
     omega: float
@@ -172,6 +201,8 @@ class ForcedPoint:
     invasiveness: float = math.nan
     residual: float = math.nan
     iterations: int = 0
+    forcing_floor: float = math.nan
+    measured_periods: float = math.nan
 
     def to_json(self) -> dict[str, Any]:
         return {
@@ -184,6 +215,8 @@ class ForcedPoint:
             "invasiveness": self.invasiveness,
             "residual": self.residual,
             "iterations": self.iterations,
+            "forcing_floor": self.forcing_floor,
+            "measured_periods": self.measured_periods,
         }
 
 
@@ -214,24 +247,74 @@ class _Meas:
     p: np.ndarray  # response coefficients, eq. 3.3 ordering
     u: np.ndarray  # control coefficients [c0, a1.., b1..] (a1 cos θ + b1 sin θ ...)
     m: Measurement
-    floor: float  # noise floor of the response coefficients
-    ufloor: float  # noise floor of the control coefficients
+    floor: float  # noise floor (3σ) of the response coefficients (white measurement noise)
+    ufloor: float  # noise floor (3σ) of the control's fundamental (coloured noise, band)
+    periods: float  # forcing periods in the record
 
 
-def _measure(rig: AbstractRig, opts: ForcedCBCOptions, omega: float, settle: float) -> _Meas:
-    """Settle, record whole periods, project response and control on the generator phase."""
-    period = 2.0 * math.pi / omega
-    if settle > 0:
-        rig.run(settle * period)
-    m = rig.run(opts.measure_periods * period + 2.0 / rig.sample_rate)
-    n = whole_periods(len(m), omega, m.sample_rate)
-    m = m.tail(n)
+def _concat(a: Measurement, b: Measurement) -> Measurement:
+    """Two consecutive records of one rig as one (the rig ran on between them)."""
+    n_a, n_b = len(a), len(b)
+    extra = {}
+    for k, v in a.extra.items():
+        w = b.extra.get(k)
+        if (isinstance(v, np.ndarray) and isinstance(w, np.ndarray)
+                and v.shape[:1] == (n_a,) and w.shape[:1] == (n_b,)):
+            extra[k] = np.concatenate([v, w])
+        else:
+            extra[k] = v
+    return Measurement(
+        time=np.concatenate([a.time, b.time]),
+        outputs=np.concatenate([a.outputs, b.outputs]), output_names=a.output_names,
+        derivatives=np.concatenate([a.derivatives, b.derivatives]),
+        control=np.concatenate([a.control, b.control]),
+        target=np.concatenate([a.target, b.target]),
+        force=np.concatenate([a.force, b.force]), phase=np.concatenate([a.phase, b.phase]),
+        sample_rate=a.sample_rate, saturated=a.saturated + b.saturated, extra=extra,
+    )
+
+
+def _record_periods(rig: AbstractRig, omega: float, periods: float) -> Measurement:
+    m = rig.run(periods * 2.0 * math.pi / omega + 2.0 / rig.sample_rate)
+    return m.tail(whole_periods(len(m), omega, m.sample_rate))
+
+
+def _project(opts: ForcedCBCOptions, m: Measurement, omega: float) -> _Meas:
+    """Response and control coefficients of a record on the generator phase, with floors.
+
+    The response's floor is :func:`coefficient_noise` (white measurement noise, robust to
+    drift). The control carries ``k_d`` times the *differentiated* measurement noise,
+    whose total variance says nothing about the noise of its fundamental coefficient:
+    its floor is the smaller of :func:`band_noise` (right for coloured stationary noise,
+    but a slow transient raises it) and :func:`coefficient_noise` (blind to slow drift,
+    but far too high for blue noise), so that neither a transient nor blue noise is
+    taken for the noise of the fundamental.
+    """
     x = m.signal(opts.signal)
     c = fourier_project(np.column_stack([x, m.control]), m.phase, opts.n_harmonics)
     cx, cu = c[:, 0], c[:, 1]
     floor = coefficient_noise(x - evaluate_series(cx, m.phase))
-    ufloor = coefficient_noise(m.control - evaluate_series(cu, m.phase))
-    return _Meas(_to_eq33(cx), cu, m, floor, ufloor)
+    eu = m.control - evaluate_series(cu, m.phase)
+    ufloor = min(band_noise(eu, omega, m.sample_rate), coefficient_noise(eu))
+    periods = len(m) * omega / (2.0 * math.pi * m.sample_rate)
+    return _Meas(_to_eq33(cx), cu, m, floor, ufloor, periods)
+
+
+def _measure(rig: AbstractRig, opts: ForcedCBCOptions, omega: float, settle: float,
+             periods: float | None = None) -> _Meas:
+    """Settle, record whole periods, project response and control on the generator phase."""
+    if settle > 0:
+        rig.run(settle * 2.0 * math.pi / omega)
+    periods = opts.measure_periods if periods is None else periods
+    return _project(opts, _record_periods(rig, omega, periods), omega)
+
+
+def _extend(rig: AbstractRig, opts: ForcedCBCOptions, omega: float, r: _Meas) -> _Meas:
+    """Keep measuring (no change, no settling) to double the record, up to the budget."""
+    more = min(r.periods, opts.max_measure_periods - r.periods)
+    more = max(1.0, float(math.floor(more + 1e-9)))
+    m = _concat(r.m, _record_periods(rig, omega, more))
+    return _project(opts, m, omega)
 
 
 def _lag(p: np.ndarray, psi: float, q: int) -> float:
@@ -254,6 +337,9 @@ def _point(rig, opts, omega, gamma, psi, pstar, r: _Meas, residual, iterations
     u_rms = float(np.sqrt(np.mean(m.control**2)))
     fb = opts.kp * x + opts.kd * xd
     inv = u_rms / max(float(np.sqrt(np.mean(fb**2))), 1e-300)
+    # a long (noise-averaging) record is not stored whole: its last stored_periods
+    m = m.tail(whole_periods(len(m), omega, m.sample_rate, max_periods=max(
+        1, math.floor(opts.stored_periods + 1e-9))))
     return ForcedPoint(
         omega=omega, forcing=gamma, force_phase=psi, target=FourierTarget(pstar),
         coefficients=p, measurement=m, amplitude=amp, phase=_lag(p, psi, q),
@@ -280,7 +366,12 @@ def _gain(opts: ForcedCBCOptions, omega: float) -> float:
     return math.hypot(opts.kp, omega * opts.kd)
 
 
-def _converge_scurve_point(rig, opts, omega, pstar, gamma, psi, on_iteration, settle_first
+class _NoiseLimited(str):
+    """A failure reason that a smaller arclength step cannot cure (the noise floor)."""
+
+
+def _converge_scurve_point(rig, opts, omega, pstar, gamma, psi, on_iteration, settle_first,
+                           jac: dict[str, np.ndarray] | None = None
                            ) -> tuple[ForcedPoint | None, np.ndarray, float, float, str]:
     """Iterate eqs. 3.6 and 3.8 with the target fundamental fixed.
 
@@ -288,8 +379,16 @@ def _converge_scurve_point(rig, opts, omega, pstar, gamma, psi, on_iteration, se
     signal is added to the force. With an exact derivative this equals
     ``k_p ΔA_1 + Ω k_d ΔB_1`` (and the sine counterpart); with a derivative estimated from
     samples it stays exact, whereas the formula would leave the estimator's lag in the
-    loop as an invasive control. Converged when the control's fundamental and the
-    higher-harmonic tracking errors are below ``tol`` (relative to ``A_1*``).
+    loop as an invasive control.
+
+    Accepted only when the target iteration has converged *and* that is verified to the
+    requested precision: the control's fundamental ``u_1`` and the higher-harmonic
+    tracking errors are below ``tol`` (relative to ``A_1*``) plus their noise floors
+    (3σ), and those floors are themselves small -- the forcing update ``J⁻¹ u_1`` known to
+    ``precision · γ``, the response to ``precision · A_1*``. "Zero within noise" with a
+    floor as large as ``γ`` would accept any forcing (the stalled points of noisy runs),
+    so while a floor is too high the record is extended, and a point whose floors stay
+    above the precision within ``max_measure_periods`` is a failure, never a point.
     """
     q = opts.n_harmonics
     fund = [1, q + 1]
@@ -301,28 +400,61 @@ def _converge_scurve_point(rig, opts, omega, pstar, gamma, psi, on_iteration, se
     err = math.inf
     # Jacobian of the control's fundamental with respect to the force's (cos, sin) parts:
     # -I when force and control enter at the same point (then the update is eq. 3.6);
-    # Broyden-corrected otherwise (e.g. a force on both masses of shaw_pierre)
-    J = -np.eye(2)
+    # Broyden-corrected otherwise (e.g. a force on both masses of shaw_pierre, or gains so
+    # low that the response follows the force rather than the target); ``jac`` carries the
+    # corrected J from point to point along a curve
+    J = -np.eye(2) if jac is None or "J" not in jac else jac["J"].copy()
     last: tuple[np.ndarray, np.ndarray] | None = None
     harm = HarmonicSecant(q, fixed=(1,))
+    a1 = max(math.hypot(pstar[1], pstar[q + 1]), 1e-300)
+    periods = float(opts.measure_periods)
+
+    def assess(r: _Meas) -> tuple[bool, bool, np.ndarray, float, float]:
+        """(converged within the floors, floors below the precision, u_1, error, floor)."""
+        e_h = float(np.max(np.abs((pstar - r.p)[others]))) if others else 0.0
+        uf = np.array([r.u[1], r.u[q + 1]])
+        # the forcing update and its noise floor, in force units (relative to γ below)
+        jinv = float(np.linalg.norm(np.linalg.inv(J), 2))
+        g = max(math.hypot(f[0], f[1]), 1e-300)
+        f_floor = r.ufloor * jinv / g
+        conv = (e_h <= opts.tol * a1 + r.floor
+                and np.hypot(*uf) <= opts.tol * K * a1 + r.ufloor)
+        precise = f_floor <= opts.precision and r.floor <= opts.precision * a1
+        return conv, precise, uf, max(e_h, float(np.hypot(*uf)) / K), f_floor
+
     for it in range(opts.picard_max):
         gamma, psi = math.hypot(f[0], f[1]), math.atan2(f[1], f[0])
         rig.set_forcing(gamma, omega, psi)
         rig.set_controller(ctrl, FourierTarget(pstar))
         settle = settle_first if it == 0 else opts.settle_periods
-        r = _measure(rig, opts, omega, settle)
+        r = _measure(rig, opts, omega, settle, periods)
         if on_iteration is not None:
             on_iteration(1)
-        a1 = max(math.hypot(pstar[1], pstar[q + 1]), 1e-300)
-        e_h = float(np.max(np.abs((pstar - r.p)[others]))) if others else 0.0
-        uf = np.array([r.u[1], r.u[q + 1]])
-        err = max(e_h, float(np.hypot(*uf)) / K)
-        if e_h <= opts.tol * a1 + r.floor and np.hypot(*uf) <= opts.tol * K * a1 + r.ufloor:
+        conv, precise, uf, err, f_floor = assess(r)
+        # converged as far as this record can tell: make sure it can tell enough
+        while conv and not precise and r.periods < 0.99 * opts.max_measure_periods:
+            r = _extend(rig, opts, omega, r)
+            conv, precise, uf, err, f_floor = assess(r)
+        if conv and precise:
             pt = _point(rig, opts, omega, gamma, psi, pstar, r, err / a1, it + 1)
+            pt.forcing_floor, pt.measured_periods = f_floor, r.periods
+            if jac is not None:
+                jac["J"] = J
             return pt, pstar, gamma, psi, ""
+        if conv:  # within noise, but the noise is too large to verify the point
+            return None, pstar, gamma, psi, _NoiseLimited(
+                f"noise floor too high to verify non-invasiveness after {r.periods:.0f} "
+                f"periods: forcing update known to {100 * f_floor:.2g} % of γ, response to "
+                f"{100 * r.floor / a1:.2g} % of A1* (precision {100 * opts.precision:g} %; "
+                "raise max_measure_periods or lower the gains)"
+            )
+        # the residual left by an update is as small as the record it was measured on
+        # could tell: look for it with a record as long
+        periods = r.periods
         if last is not None:
             df, du = f - last[0], uf - last[1]
-            if df @ df > 0:
+            # Broyden only on changes well above the noise of u_1 (noise would wreck J)
+            if df @ df > 0 and np.linalg.norm(J @ df) > 3.0 * r.ufloor:
                 J = J + np.outer(du - J @ df, df) / (df @ df)
         last = (f.copy(), uf)
         # eq. 3.6 (measured, quasi-Newton): move the control's fundamental into the force
@@ -425,6 +557,7 @@ def scurve_cbc(
         if on_iteration is not None:
             on_iteration(k)
 
+    jac: dict[str, np.ndarray] = {}
     if start is None:
         # bootstrap: hold the observed signal at its measured low-forcing response
         rig.set_forcing(lo, omega, 0.0)
@@ -436,7 +569,7 @@ def scurve_cbc(
         # force phase so that the response fundamental is ~ A1 cos θ
         psi = -math.atan2(p0[q + 1], p0[1])
         pt, pstar, gamma, psi, why = _converge_scurve_point(
-            rig, opts, omega, pstar, lo, psi, it_cb, opts.settle_periods)
+            rig, opts, omega, pstar, lo, psi, it_cb, opts.settle_periods, jac)
         if pt is None:
             failures.append(ForcedFailure(omega, lo, why))
             warnings.warn(f"S-curve CBC at Ω={omega:g}: first point: {why}.",
@@ -473,11 +606,12 @@ def scurve_cbc(
         gamma = max(y_pred[1] * g_ref, 0.0)
         try:
             new, _, _, _, why = _converge_scurve_point(rig, opts, omega, pstar, gamma,
-                                                       cur.force_phase, it_cb, opts.settle_periods)
+                                                       cur.force_phase, it_cb,
+                                                       opts.settle_periods, jac)
         except ConvergenceError as exc:
             new, why = None, f"rig failure: {exc}"
         if new is None:
-            if ds > opts.ds / 16:
+            if ds > opts.ds / 16 and not isinstance(why, _NoiseLimited):
                 ds /= 2.0
                 continue
             failures.append(ForcedFailure(omega, gamma, why))

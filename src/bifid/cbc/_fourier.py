@@ -46,7 +46,7 @@ def coefficient_noise(residual: np.ndarray) -> float:
 
 
 def band_noise(residual: np.ndarray, omega: float, sample_rate: float) -> float:
-    """Noise floor (3σ) of the *fundamental* coefficients fitted to this residual.
+    """Noise floor of the *fundamental* fitted to this residual: 3 × RMS of ``|(a_1, b_1)|``.
 
     :func:`coefficient_noise` assumes white noise. A control signal is not white: the
     derivative estimate in ``k_d ẋ`` differentiates the measurement noise, so nearly all
@@ -56,10 +56,14 @@ def band_noise(residual: np.ndarray, omega: float, sample_rate: float) -> float:
     forcing itself). The variance of a fitted coefficient at ``Ω`` is the noise's power
     spectral density *near* ``Ω`` over the record length: here it is estimated from the
     periodogram of the residual (harmonics removed) on the bins of the band ``(0, 2Ω)``
-    other than ``Ω``'s own -- ``2P - 2`` bins for a record of ``P`` periods. A coefficient
-    ``a = (2/n) Re X_k`` has variance ``E|2X_k/n|² / 2``. An unfinished transient raises
-    these bins too: it widens the floor, which the caller must compare with the precision
-    it needs (never read as "within noise, converged").
+    other than ``Ω``'s own -- ``2P - 2`` bins for a record of ``P`` periods: the pair
+    ``(a, b) = (2/n)(Re X_k, -Im X_k)`` has ``E(a² + b²) = E|2X_k/n|²``. The magnitude of the
+    pair, not each coefficient, is bounded: differentiated noise also leaks in through
+    the record's ends (``e_n - e_0``, the same in every bin, comparable to the in-band
+    part for short records), and that part falls on ``a`` or ``b`` depending on the phase
+    at which the record ends. An unfinished transient raises these bins too: it widens
+    the floor, which the caller must compare with the precision it needs (never read as
+    "within noise, converged").
 
     Parameters
     ----------
@@ -80,7 +84,7 @@ def band_noise(residual: np.ndarray, omega: float, sample_rate: float) -> float:
     band = (k >= 1) & (k < 2.0 * periods - 0.5) & (np.abs(k - periods) >= 0.75)
     if not np.any(band):
         return float("inf")
-    return 3.0 * math.sqrt(float(np.mean(np.abs(X[band]) ** 2)) / 2.0)
+    return 3.0 * math.sqrt(float(np.mean(np.abs(X[band]) ** 2)))
 
 
 def whole_periods(n_samples: int, omega: float, sample_rate: float, max_periods: int | None = None
