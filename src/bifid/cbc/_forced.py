@@ -650,7 +650,19 @@ def _record(rig, opts, pt: ForcedPoint, points: list[ForcedPoint],
         on_point(pt)
 
 
-# ---------------------------------------------------------------------------------- FRC
+@dataclass
+class _FRCEval:
+    """One evaluation of the FRC zero problem: the rig held at target ``y``, measured."""
+
+    y: np.ndarray  # (A_1*, B_1*, Ω)
+    pstar: np.ndarray  # the whole target (higher harmonics converged by Picard)
+    r: _Meas  # the record the evaluation was measured on
+    g: np.ndarray  # control's fundamental (cos, sin) / |k_p + iΩk_d|, in units of x
+    gfloor: float  # noise floor (3σ) of g
+    e_h: float  # largest tracking error of the higher harmonics
+    u: float  # |u_1|: magnitude of the control's fundamental (a force)
+
+
 def frc_cbc(
     rig: AbstractRig,
     forcing: float,
@@ -663,11 +675,26 @@ def frc_cbc(
 ) -> tuple[list[ForcedPoint], list[ForcedFailure]]:
     """Measure a frequency response curve at forcing ``γ`` over ``omega_range``.
 
-    Unknowns ``y = (A_1^*, B_1^*, Ω)``; equations ``A_1^* - A_1 = 0``, ``B_1^* - B_1 = 0``
-    (the response's fundamental, higher harmonics converged by Picard inside each
-    evaluation) and the pseudo-arclength condition ``t^T W (y - y_pred) = 0``. Newton
+    Unknowns ``y = (A_1^*, B_1^*, Ω)``; equations ``G(y) = u_1 / |k_p + iΩk_d| = 0`` (the
+    control's fundamental, cos and sin parts, in units of the response; the higher
+    harmonics converged by Picard, eq. 3.8, inside each evaluation) and the
+    pseudo-arclength condition ``t^T W (y - y_pred) = 0`` (``W`` normalises the amplitudes
+    by ``a_ref`` = 20 × the first response amplitude and ``Ω`` by ``omega_scale``). Newton
     with a finite-difference Jacobian (3 rig evaluations) updated by Broyden's rule; the
     first point is solved at fixed ``Ω = omega_range[0]``.
+
+    Acceptance (as for S-curves). With the higher harmonics converged the control is a
+    force ``u_1`` at the forcing frequency: the controlled response is the uncontrolled
+    response to the force plus ``u_1`` (exactly so when the actuator acts where the force
+    does, as on ``duffing``). A point is accepted when ``|u_1| <= tol k A_1^* + floor`` and
+    the higher harmonics' errors ``<= tol A_1^* + floor`` (``k = |k_p + iΩk_d|``), *and*
+    those floors are small: the control's fundamental known to ``precision · γ`` and the
+    response to ``precision · A_1^*`` (3σ). While a floor is too high the record is
+    extended (no re-settling) up to ``max_measure_periods``; a point that cannot be
+    verified is a failure ("noise floor too high ..."), never recorded, and a smaller
+    step cannot cure it. With noise, finite-difference steps are enlarged until the
+    change of ``G`` stands out of its noise, and Broyden updates use only changes well
+    above the noise.
     """
     opts = options or ForcedCBCOptions()
     w0, w1 = float(omega_range[0]), float(omega_range[1])
@@ -678,93 +705,145 @@ def frc_cbc(
     if not (forcing > 0 and math.isfinite(forcing)):
         raise BifidInputError(f"forcing must be positive, got {forcing!r}.")
     q = opts.n_harmonics
+    others = [i for i in range(2 * q + 1) if i not in (1, q + 1)]
     direction = 1.0 if w1 > w0 else -1.0
     om_ref = omega_scale or abs(w1 - w0)
+    ctrl = opts.controller
     points: list[ForcedPoint] = []
     failures: list[ForcedFailure] = []
-    state: dict[str, Any] = {"pstar": None}
+    state: dict[str, Any] = {"pstar": None, "periods": float(opts.measure_periods)}
 
     def it_cb(k: int) -> None:
         if on_iteration is not None:
             on_iteration(k)
 
-    def evaluate(y: np.ndarray) -> tuple[np.ndarray, tuple]:
-        """``G = (u_cos, u_sin) / |k_p + iΩk_d|``: the control's fundamental, in units of x."""
+    def eval_of(y: np.ndarray, pstar: np.ndarray, r: _Meas) -> _FRCEval:
+        K = _gain(opts, float(y[2]))
+        e_h = float(np.max(np.abs((pstar - r.p)[others]))) if others else 0.0
+        uf = np.array([r.u[1], r.u[q + 1]])
+        return _FRCEval(np.array(y, dtype=float), pstar, r, uf / K, r.ufloor / K, e_h,
+                        float(np.hypot(*uf)))
+
+    def evaluate(y: np.ndarray) -> _FRCEval:
+        """Hold target ``y`` (Picard on the higher harmonics) and measure."""
         A1, B1, om = float(y[0]), float(y[1]), float(y[2])
         pstar = state["pstar"].copy()
         pstar[1], pstar[q + 1] = A1, B1
-        others = [i for i in range(2 * q + 1) if i not in (1, q + 1)]
+        a1 = max(math.hypot(A1, B1), 1e-300)
         rig.set_forcing(forcing, om, 0.0)
-        r = None
         harm = HarmonicSecant(q, fixed=(1,))
-        for _k in range(opts.picard_max):
-            rig.set_controller(opts.controller, FourierTarget(pstar))
-            r = _measure(rig, opts, om, opts.settle_periods)
+        ev = None
+        for k in range(opts.picard_max):
+            rig.set_controller(ctrl, FourierTarget(pstar))
+            r = _measure(rig, opts, om, opts.settle_periods, state["periods"])
             it_cb(1)
-            e_h = float(np.max(np.abs((pstar - r.p)[others])))
-            if e_h <= opts.tol * max(math.hypot(A1, B1), 1e-300) + r.floor:
+            ev = eval_of(y, pstar, r)
+            if ev.e_h <= opts.tol * a1 + r.floor or k + 1 == opts.picard_max:
                 break
             pstar = harm.step(pstar, r.p, r.floor)
-        assert r is not None
+        assert ev is not None
         state["pstar"] = pstar
-        K = _gain(opts, om)
-        g = np.array([r.u[1], r.u[q + 1]]) / K
-        return g, (pstar, r, r.ufloor / K)
+        return ev
+
+    def assess(ev: _FRCEval) -> tuple[bool, bool, float]:
+        """(converged within the floors, floors below the precision, force floor / γ)."""
+        a1 = max(math.hypot(ev.y[0], ev.y[1]), 1e-300)
+        r = ev.r
+        conv = (ev.e_h <= opts.tol * a1 + r.floor
+                and ev.u <= opts.tol * forcing + r.ufloor)
+        f_floor = r.ufloor / forcing
+        precise = f_floor <= opts.precision and r.floor <= opts.precision * a1
+        return conv, precise, f_floor
 
     # start: open-loop response at w0 as the first guess
     rig.set_forcing(forcing, w0, 0.0)
     rig.set_controller(None)
     p0 = _measure(rig, opts, w0, 3 * opts.settle_periods).p
     state["pstar"] = p0.copy()
-    a_ref = max(math.hypot(p0[1], p0[q + 1]) * 20.0, 1e-12)
+    a_first = max(math.hypot(p0[1], p0[q + 1]), 1e-12)
+    a_ref = 20.0 * a_first
     W = np.array([1.0 / a_ref**2, 1.0 / a_ref**2, 1.0 / om_ref**2])
 
-    def fd_jac(y, g0):
+    def fd_jac(ev0: _FRCEval) -> np.ndarray:
+        """Finite-difference ``dG/dy`` at ``ev0.y``; steps grow until ``ΔG`` beats noise."""
+        y = ev0.y
         J = np.empty((2, 3))
         for j in range(3):
-            h = 1e-2 * (a_ref / 20.0 if j < 2 else om_ref * 0.01)
-            yp = y.copy()
-            yp[j] += h
-            gp, _ = evaluate(yp)
-            J[:, j] = (gp - g0) / h
+            h = 1e-2 * a_first if j < 2 else 1e-4 * om_ref
+            h_max = 0.1 * a_first if j < 2 else 1e-2 * om_ref
+            while True:
+                yp = y.copy()
+                yp[j] += h
+                evp = evaluate(yp)
+                dg = evp.g - ev0.g
+                need = 5.0 * max(ev0.gfloor, evp.gfloor)
+                if float(np.linalg.norm(dg)) >= need or h >= h_max:
+                    break
+                h = min(h_max, h * min(10.0, 2.0 * need / max(float(np.linalg.norm(dg)),
+                                                              1e-300)))
+            J[:, j] = dg / h
         evaluate(y)
         return J
 
-    def converged(y, g, info) -> bool:
-        return float(np.max(np.abs(g))) <= opts.tol * max(math.hypot(y[0], y[1]), 1e-300) + info[2]
-
-    def newton(y, row, c, J):
-        g, info = evaluate(y)
-        for _ in range(opts.newton_max):
-            if converged(y, g, info):
-                return y, info, J
+    def newton(y: np.ndarray, row: np.ndarray, c: float, J: np.ndarray
+               ) -> tuple[_FRCEval | None, np.ndarray, str, int]:
+        state["periods"] = float(opts.measure_periods)
+        ev = evaluate(y)
+        why = ""
+        for it in range(opts.newton_max + 1):
+            conv, precise, f_floor = assess(ev)
+            # converged as far as this record can tell: make sure it can tell enough
+            while conv and not precise and ev.r.periods < 0.99 * opts.max_measure_periods:
+                ev = eval_of(ev.y, ev.pstar, _extend(rig, opts, float(ev.y[2]), ev.r))
+                conv, precise, f_floor = assess(ev)
+            if conv and precise:
+                return ev, J, "", it + 1
+            a1 = max(math.hypot(ev.y[0], ev.y[1]), 1e-300)
+            if conv:
+                return None, J, _NoiseLimited(
+                    f"noise floor too high to verify non-invasiveness after "
+                    f"{ev.r.periods:.0f} periods: control's fundamental known to "
+                    f"{100 * f_floor:.2g} % of γ, response to {100 * ev.r.floor / a1:.2g} % "
+                    f"of A1* (precision {100 * opts.precision:g} %; raise "
+                    "max_measure_periods or lower the gains)"), it + 1
+            why = (f"Newton–Broyden did not converge in {opts.newton_max} iterations "
+                   f"(control's fundamental {100 * ev.u / forcing:.2g} % of γ, noise floor "
+                   f"{100 * ev.r.ufloor / forcing:.2g} %)")
+            if it == opts.newton_max:
+                break
+            # the residual is as small as the record it was measured on could tell: look
+            # for the next one with a record as long
+            state["periods"] = max(state["periods"], ev.r.periods)
             A = np.vstack([J, row[None, :]])
-            dy = np.linalg.solve(A, np.concatenate([-g, [c - row @ y]]))
-            yn = y + dy
-            gn, info = evaluate(yn)
-            J = J + np.outer(gn - g - J @ dy, dy * W) / (dy @ (dy * W))
-            y, g = yn, gn
-        return (y if converged(y, g, info) else None), info, J
+            dy = np.linalg.solve(A, np.concatenate([-ev.g, [c - row @ ev.y]]))
+            evn = evaluate(ev.y + dy)
+            # Broyden only on changes well above the noise of G (noise would wreck J)
+            if float(np.linalg.norm(J @ dy)) > 3.0 * max(ev.gfloor, evn.gfloor):
+                J = J + np.outer(evn.g - ev.g - J @ dy, dy * W) / (dy @ (dy * W))
+            ev = evn
+        return None, J, why, opts.newton_max
 
-    y = np.array([p0[1], p0[q + 1], w0])
-    g0, _ = evaluate(y)
-    J = fd_jac(y, g0)
-    e_om = np.array([0.0, 0.0, 1.0])
-    y1, info, J = newton(y, e_om, w0, J)
-    if y1 is None:
-        failures.append(ForcedFailure(w0, forcing, "first FRC point did not converge"))
-        warnings.warn("FRC CBC: first point did not converge.", ConvergenceWarning, stacklevel=2)
-        return points, failures
+    def fail(omega: float, why: str, where: str) -> None:
+        failures.append(ForcedFailure(omega, forcing, why))
+        warnings.warn(f"FRC CBC {where} Ω={omega:.4g}: {why}.", ConvergenceWarning,
+                      stacklevel=3)
 
-    def record(y, info):
-        pstar, r, _ = info
-        a1 = max(math.hypot(y[0], y[1]), 1e-300)
-        res = math.hypot(r.u[1], r.u[q + 1]) / _gain(opts, float(y[2])) / a1
-        pt = _point(rig, opts, float(y[2]), forcing, 0.0, pstar, r, res, 0)
+    def record(ev: _FRCEval, iterations: int) -> None:
+        a1 = max(math.hypot(ev.y[0], ev.y[1]), 1e-300)
+        om = float(ev.y[2])
+        pt = _point(rig, opts, om, forcing, 0.0, ev.pstar, ev.r,
+                    ev.u / _gain(opts, om) / a1, iterations)
+        pt.forcing_floor, pt.measured_periods = ev.r.ufloor / forcing, ev.r.periods
         _record(rig, opts, pt, points, on_point)
 
-    record(y1, info)
-    ys = [y1]
+    y = np.array([p0[1], p0[q + 1], w0])
+    J = fd_jac(evaluate(y))
+    first, J, why, its = newton(y, np.array([0.0, 0.0, 1.0]), w0, J)
+    if first is None:
+        fail(w0, f"first point: {why}", "at")
+        return points, failures
+    record(first, its)
+    ys = [first.y]
     ds = opts.ds
     t = np.array([0.0, 0.0, direction])
     while len(points) < opts.max_points:
@@ -775,21 +854,20 @@ def frc_cbc(
             t = t / math.sqrt(t @ (W * t))
         y_pred = ys[-1] + ds * t
         row = W * t
-        ynew, info, Jn = newton(y_pred, row, float(row @ y_pred), J)
-        if ynew is None:
-            if ds > opts.ds / 16:
+        try:
+            new, Jn, why, its = newton(y_pred, row, float(row @ y_pred), J)
+        except ConvergenceError as exc:
+            new, why = None, f"rig failure: {exc}"
+        if new is None:
+            if ds > opts.ds / 16 and not isinstance(why, _NoiseLimited):
                 ds /= 2
-                g_last, _ = evaluate(ys[-1])
-                J = fd_jac(ys[-1], g_last)
+                J = fd_jac(evaluate(ys[-1]))
                 continue
-            failures.append(ForcedFailure(float(y_pred[2]), forcing,
-                                          "Newton–Broyden did not converge"))
-            warnings.warn(f"FRC CBC stopped near Ω={y_pred[2]:.4g}: Newton–Broyden did not "
-                          "converge.", ConvergenceWarning, stacklevel=2)
+            fail(float(y_pred[2]), why, "stopped near")
             break
         J = Jn
-        record(ynew, info)
-        ys.append(ynew)
+        record(new, its)
+        ys.append(new.y)
         turn = 0.0
         if len(ys) >= 3:
             a_, b_ = ys[-2] - ys[-3], ys[-1] - ys[-2]
@@ -799,7 +877,7 @@ def frc_cbc(
             ds = max(opts.ds / 8, ds * 0.5)
         elif turn < opts.max_turn / 2:
             ds = min(opts.ds_max, ds * 1.3)
-        om = float(ynew[2])
+        om = float(new.y[2])
         if (om - w1) * direction > 0 or (om - w0) * direction < 0:
             break
     return points, failures

@@ -964,7 +964,9 @@ class HopfHybridModel:
                 if np.isfinite(T[k]) else float("nan")
             orbits.append(
                 {
-                    "param": float(mu[k] * self.mu_s_ + self.mu_c_),
+                    # back from normal-form units; clipped: the round trip can land an
+                    # ulp outside the interval the samples were taken in
+                    "param": float(np.clip(mu[k] * self.mu_s_ + self.mu_c_, lo, hi)),
                     "period": float(T[k]),
                     "stable": bool(deriv[k] < 0),
                     "floquet_max": fm,
