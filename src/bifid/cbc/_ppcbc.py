@@ -321,7 +321,10 @@ class _Family:
         """
         x1, x2 = m.signal(self.o.x1), m.signal(self.o.x2)
         om = estimate_frequency(x1, m.sample_rate)
-        if not (om > 0 and math.isfinite(om)):
+        if not (om > 0 and math.isfinite(om)) or (
+                omega_hint > 0 and not 1 / 3 < om / omega_hint < 3):
+            # no oscillation, or crossings of measurement noise: a frequency this far from
+            # the last one would make the next record absurdly short or long
             om = omega_hint
         if not (om > 0 and math.isfinite(om)):
             raise ConvergenceError("no oscillation found in the measured response.")
@@ -396,26 +399,39 @@ def _bootstrap(rig: AbstractRig, opts: PPCBCOptions, a_start: float, omega_guess
     derivative = opts.x2 == f"{opts.x1}_dot"
     if opts.bootstrap_gains is not None:
         kp, kd = opts.bootstrap_gains
+        # its own plane and gains, validated without the protocol's output filter
         boot = PPCBCOptions(**{**opts.to_json(), "target": "elliptic",
-                               "x2": f"{opts.x1}_dot", "kp": kp, "kd": kd})
+                               "x2": f"{opts.x1}_dot", "kp": kp, "kd": kd,
+                               "filter_hz": None})
         aspect0 = -omega_guess
     else:  # the protocol's own plane and gains (e.g. (u1, u2) of eq. 3.16)
         boot = PPCBCOptions(**{**opts.to_json(), "target": "elliptic"})
         aspect0 = -omega_guess if derivative else 1.0
     fam = _Family(boot)
-    shape = np.array([aspect0, 0.0, 0.0])
     omega = omega_guess
     r = None
-    for _ in range(4):
-        r = _evaluate(rig, boot, fam, fam.target(a_start, shape), omega)
-        if r.a0 > 1e-3 * a_start and r.shape[0] != 0 and np.all(np.isfinite(r.shape)):
-            omega = r.omega
-            shape = r.shape
+    # a target too small against the measurement noise can fail to lock (the angle of a
+    # noisy (x1, ẋ1) is noise): try twice and four times the amplitude before giving up;
+    # the frame measured there serves the scan's smaller targets as well
+    for a_try in (a_start, 2.0 * a_start, 4.0 * a_start):
+        shape = np.array([aspect0, 0.0, 0.0])
+        for _ in range(4):
+            r = _evaluate(rig, boot, fam, fam.target(a_try, shape), omega)
+            # learn the ellipse only from a response that is not mostly noise: an aspect
+            # ratio measured on noise (a differentiated one, in the (x1, ẋ1) plane) is
+            # huge, and the next target would then ask for a huge ẋ1
+            if (r.a0 > 1e-3 * a_try and np.all(np.isfinite(r.shape))
+                    and 1 / 3 < abs(r.shape[0] / aspect0) < 3):
+                omega = r.omega
+                shape = r.shape
+        if r.a0 > 0.1 * a_try:
+            break
     assert r is not None
-    if not r.a0 > 0.1 * a_start:
+    if not r.a0 > 0.1 * a_try:
         raise ConvergenceError(
             f"the bootstrap controller did not start an oscillation (amplitude {r.a0:.3g} "
-            f"for a target of {a_start:.3g}); give bootstrap_gains with kp, kd > 0."
+            f"for targets of {a_start:.3g} to {a_try:.3g}); give bootstrap_gains with "
+            "kp, kd > 0."
         )
     # the curve in the protocol's own plane
     own = _Family(PPCBCOptions(**{**opts.to_json(), "target": "elliptic"}))
