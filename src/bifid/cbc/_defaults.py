@@ -15,7 +15,8 @@ checked by ``tests/test_cbc_stability.py``):
   output passes a 100 Hz first-order low-pass (``filter_hz``; 2.5 Hz LCOs, 1.4° of lag):
   with 1 % measurement noise it cuts the noise the gains pass to the shaker from ~1 % to
   ~0.25 % of the feedback, and the controlled multipliers stay below 0.6 (filter state
-  included). The ``(h, ḣ)`` plane also
+  included). The bootstrap controller (its own plane and gains) runs unfiltered, as its
+  gains were validated. The ``(h, ḣ)`` plane also
   works (``--x2 h_dot --kp 50 --kd 40``: multipliers <= 0.58; ``kd > 0`` adds damping in
   proportion to the radial error) but its derivative estimate feeds noise through
   ``kd``. (The thesis's ``kp = kd = -100`` of Example 3.3 are unstable in either plane
