@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 
 from bifid.cbc import VirtualRig
-from bifid.cbc._forced import ForcedCBCOptions, folds_of, scurve_cbc
+from bifid.cbc._forced import ForcedCBCOptions, folds_of, frc_cbc, scurve_cbc
 from bifid.cbc._truth import correct_forced, forced_orbit_from_samples
 from bifid.continuation import max_abs
 from bifid.errors import ConvergenceWarning
@@ -185,3 +185,51 @@ def test_noisy_scurve_points_are_responses_of_the_uncontrolled_system():
             checked += 1
     assert checked >= 5
     assert 0.32 < pts[-1].amplitude < 0.5  # middle branch (between the folds' amplitudes)
+
+
+# ------------------------------------------------------------ FRC with measurement noise
+def _noisy_frc(gains: float, max_points: int, **opts):
+    """A duffing FRC at γ = 0.01 from Ω = 0.95 up, σ = 1 % of its largest amplitude (0.48)."""
+    s = get_system("duffing")
+    rig = VirtualRig(s, sample_rate=100.0, noise={"q": 0.0048}, seed=3, record_states=True)
+    o = ForcedCBCOptions(signal="q", kp=gains, kd=gains, n_harmonics=3, settle_periods=20,
+                         measure_periods=3, max_points=max_points, **opts)
+    with warnings.catch_warnings(record=True) as caught:
+        warnings.simplefilter("always")
+        pts, fails = frc_cbc(rig, 0.01, (0.95, 1.1), o)
+    return s, pts, fails, [w for w in caught if issubclass(w.category, ConvergenceWarning)]
+
+
+def test_noisy_frc_points_are_responses_of_the_uncontrolled_system():
+    """Check noisy FRC points (1 % noise, low gains) within 1 % of the true responses.
+
+    kp = kd = 0.1 (``defaults_for("duffing").noisy_options``), Ω from 0.95 up the lower
+    flank of the resonance (``|dlnA/dlnγ| < 1`` there: the amplitude at the point's own
+    (γ, Ω) is well conditioned). Every point's control fundamental is verified to 0.5 % of
+    γ (3σ) and its amplitude is within 1 % of the uncontrolled response Newton-corrected
+    at (γ, Ω). Before the fix (a floor accepted whatever its size, the residual judged
+    against the target's amplitude instead of the force) this very run recorded a point
+    1.7 % off (errors 0.1-1.7 %; now <= 0.3 %).
+    """
+    s, pts, fails, warned = _noisy_frc(0.1, 6)
+    assert not fails and not warned and len(pts) == 6
+    assert all(np.diff([p.omega for p in pts]) > 0)
+    for p in pts:
+        assert p.forcing_floor <= 0.005
+        assert _amplitude_error(s, p) < 0.01
+
+
+def test_noisy_frc_reports_points_it_cannot_verify():
+    """Check an FRC point whose control cannot be told from zero is a failure, not a point.
+
+    kp = kd = 0.5 with 1 % noise: the control's fundamental scatters by
+    ``3σ |kp + iΩkd| sqrt(2/n)`` ≈ 2 % of γ over 12 periods, so non-invasiveness to 0.5 %
+    of γ cannot be verified within ``max_measure_periods = 12``. The old code accepted
+    such points within the (large) floor: this very run recorded 3 points, one 7.5 % off
+    the uncontrolled response. Now: no point, one failure that says why, a
+    ConvergenceWarning.
+    """
+    _, pts, fails, warned = _noisy_frc(0.5, 3, max_measure_periods=12.0)
+    assert not pts
+    assert len(fails) == 1 and "noise floor" in fails[0].reason
+    assert warned

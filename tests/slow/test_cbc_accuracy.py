@@ -334,3 +334,94 @@ def test_scurve_with_measurement_noise(system, fraction):
         assert p.amplitude == pytest.approx(float(max_abs(Vc[:, obs])), rel=0.01)
         n_checked += 1
     assert n_checked >= len(pts) // 2
+
+
+# --------------------------------------------------- FRCs with measurement noise (§5)
+NOISY_FRCS = {
+    # system: (γ, Ω range) -- both FRCs fold twice (bistable between the folds)
+    "duffing": (0.01, (0.95, 1.10)),
+    "shaw_pierre": (0.01, (0.98, 1.03)),
+}
+
+
+def _dense_frc(s, forcing, omega_range):
+    from bifid.continuation import ContinuationOptions, frc
+
+    w0, w1 = omega_range
+    br = frc(s, forcing, (w0 - 0.02, w1 + 0.02), n_mesh=32,
+             options=ContinuationOptions(ds=0.005, ds_min=1e-9, ds_max=0.01, max_steps=20000))
+    return (np.asarray(br.params), np.asarray(br.data["observed_amplitude"]),
+            sorted(sp.param for sp in br.special("fold")))
+
+
+def _gamma_sensitivity(s, p, Vc, obs, rel=2e-3):
+    """``dlnA/dlnγ`` at the point's Ω (Newton at γ(1 ± rel)); inf where Newton fails."""
+    a = []
+    for f in (1.0 + rel, 1.0 - rel):
+        try:
+            a.append(float(max_abs(correct_forced(s, p.omega, p.forcing * f, Vc,
+                                                  n_mesh=32)[:, obs])))
+        except ConvergenceError:
+            return np.inf
+    return (np.log(a[0]) - np.log(a[1])) / (np.log(1.0 + rel) - np.log(1.0 - rel))
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("system", sorted(NOISY_FRCS))
+@pytest.mark.parametrize("fraction", [0.003, 0.01])
+def test_frc_with_measurement_noise(system, fraction):
+    """Check §5's limits on noisy FRCs: σ = 0.3 % / 1 % of the largest response amplitude.
+
+    ``frc_cbc`` with the noisy gains of ``defaults_for`` on the virtual rig (100 Hz),
+    seed 1. Against a dense continuation FRC: both folds within 2 % in Ω (the issue's
+    limit) and within 5 % of the width of the bistable range (measured <= 2.1 %); every
+    point within 1 % of the curve (distance normalised by the ranges of Ω and A, as in
+    ``test_duffing_frc_bistable``); and, where the amplitude at the point's own (γ, Ω) is
+    well conditioned (``|dlnA/dlnγ| <= 2``: away from the folds, where a forcing error δ
+    becomes ``|dlnA/dlnγ| δ``), the amplitude within 1 % of the uncontrolled response
+    Newton-corrected at (γ, Ω). No failure, every point's control fundamental verified to
+    0.5 % of γ. (The code before the fix accepted points within any noise floor: on
+    shaw_pierre with 1 % noise 200 points, 27 "folds", errors up to 7 %.)
+    """
+    forcing, om_range = NOISY_FRCS[system]
+    s = get_system(system)
+    d = defaults_for(system)
+    w_br, a_br, folds_ref = _dense_frc(s, forcing, om_range)
+    inside = (w_br >= om_range[0]) & (w_br <= om_range[1])
+    sigma = fraction * float(a_br[inside].max())
+    rig = d.rig(s, noise={d.signal: sigma}, seed=1, record_states=True)
+    opts = ForcedCBCOptions(**{**dict(signal=d.signal, kp=d.kp, kd=d.kd,
+                                      n_harmonics=d.n_harmonics,
+                                      settle_periods=d.settle_periods,
+                                      measure_periods=d.measure_periods),
+                               **d.noisy_options})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        pts, fails = frc_cbc(rig, forcing, om_range, opts)
+    assert not fails
+    got = sorted(f["omega"] for f in folds_of(pts, "omega"))
+    assert len(got) == 2 and len(folds_ref) == 2
+    np.testing.assert_allclose(got, folds_ref, rtol=0.02)
+    width = folds_ref[1] - folds_ref[0]
+    assert np.max(np.abs(np.subtract(got, folds_ref))) < 0.05 * width
+    ws, as_ = np.ptp(w_br[inside]), np.ptp(a_br[inside])
+    t = np.linspace(0.0, 1.0, 41)[:, None]
+    wd = (w_br[:-1] + t * np.diff(w_br)).ravel()
+    ad = (a_br[:-1] + t * np.diff(a_br)).ravel()
+    obs = s.state_index(d.signal)
+    n_checked = 0
+    for p in pts:
+        assert p.forcing_floor <= 0.005
+        dist = np.min(np.hypot((wd - p.omega) / ws, (ad - p.amplitude) / as_))
+        assert dist < 0.01, (p.omega, p.amplitude, dist)
+        m = p.measurement
+        V = forced_orbit_from_samples(m.extra["states"], m.phase, p.force_phase, n_mesh=32)
+        try:
+            Vc = correct_forced(s, p.omega, p.forcing, V, n_mesh=32)
+        except ConvergenceError:  # at a fold Newton at fixed (γ, Ω) is singular
+            continue
+        if abs(_gamma_sensitivity(s, p, Vc, obs)) > 2.0:
+            continue
+        assert p.amplitude == pytest.approx(float(max_abs(Vc[:, obs])), rel=0.01)
+        n_checked += 1
+    assert n_checked >= 0.7 * len(pts)

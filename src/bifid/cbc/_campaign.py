@@ -195,6 +195,7 @@ def scurve_campaign(
     rig_options: Mapping[str, Any] | None = None,
     out: str | Path | None = None,
     on_point: Callable[[Any], None] | None = None,
+    scale_to_range: bool = False,
 ):
     """Forced CBC S-curves (thesis §3.2.1) on a virtual rig, one per frequency.
 
@@ -218,6 +219,12 @@ def scurve_campaign(
         Extra keyword arguments of :class:`~bifid.cbc.VirtualRig`.
     out : path, optional
         netCDF file to append each point to as soon as it converges (must not exist).
+    scale_to_range : bool
+        Arclength steps scaled to the forcing range rather than to the first point
+        (:func:`~bifid.cbc.scurve_cbc`): noisy S-curves start high in their range and
+        otherwise cross the lower branch in few steps (shaw_pierre, 1 % noise: 5-8
+        points below the first fold instead of 2, for up to 2× the points and wall time;
+        off by default, see ``notes/issue-3.md``, session 3b).
 
     Returns
     -------
@@ -281,7 +288,8 @@ def scurve_campaign(
                 if on_point is not None:
                     on_point(pt)
 
-            _p, fails = scurve_cbc(rig, w, tuple(forcing_range), opts, on_point=keep)
+            _p, fails = scurve_cbc(rig, w, tuple(forcing_range), opts, on_point=keep,
+                                   scale_to_range=scale_to_range)
             failures += fails
             curves.append(pts)
     if not recs:

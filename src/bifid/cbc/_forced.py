@@ -78,7 +78,8 @@ class ForcedCBCOptions:
     settle_periods, measure_periods : float
         Forcing periods to wait after a change and to record.
     tol : float
-        Relative tolerance: ``max |p* - p| <= tol * A_1^*`` (plus the noise floor).
+        Relative tolerance: ``max |p* - p| <= tol * A_1^*`` (plus the noise floor); on an
+        FRC the control's fundamental ``|u_1| <= tol * γ`` (plus its floor).
     picard_max : int
         Iterations (eqs. 3.6 + 3.8) per point.
     ds, ds_max : float
@@ -95,7 +96,8 @@ class ForcedCBCOptions:
     watch_periods : float
     precision : float
         Largest accepted noise floor (3σ, relative): of the forcing update ``|J⁻¹ u_1|``
-        against ``γ`` and of the response's fundamental against ``A_1^*``. A point whose
+        (S-curve) or of the control's fundamental ``u_1`` (FRC) against ``γ``, and of the
+        response's fundamental against ``A_1^*``. A point whose
         control is "zero within noise" is only as good as that noise floor; while the floor
         is above ``precision`` the record is extended (the rig keeps running, no
         re-settling) up to ``max_measure_periods``, and if it is still above, the point is a
@@ -181,8 +183,9 @@ class ForcedPoint:
         ``max |p* - p| / A_1^*`` at convergence.
     iterations : int
     forcing_floor : float
-        Noise floor (3σ) of the last forcing update relative to ``γ`` (S-curves): how
-        precisely non-invasiveness was verified (0 without noise up to round-off).
+        Noise floor (3σ) relative to ``γ`` of the last forcing update (S-curves) or of
+        the control's fundamental (FRCs): how precisely non-invasiveness was verified
+        (0 without noise up to round-off).
     measured_periods : float
         Forcing periods in the record the point was accepted on.
     """
@@ -523,6 +526,7 @@ def scurve_cbc(
     on_iteration: Callable[[int], None] | None = None,
     start: ForcedPoint | None = None,
     previous: ForcedPoint | None = None,
+    scale_to_range: bool = False,
 ) -> tuple[list[ForcedPoint], list[ForcedFailure]]:
     """Measure an S-curve at frequency ``omega`` from ``forcing_range[0]`` up (§3.2.1).
 
@@ -535,6 +539,15 @@ def scurve_cbc(
     ----------
     amplitude_scale : float, optional
         ``a_ref`` of the arclength norm (default: 20 × the first point's amplitude).
+    scale_to_range : bool
+        Without ``amplitude_scale``, cap ``a_ref`` at ``2 A γ_max / γ`` (twice the linear
+        extrapolation of the first point ``(γ, A)`` to the top of the range). A curve
+        started high in its range (noisy campaigns start at larger γ, where the forcing
+        update can be verified) otherwise takes steps scaled to its larger first
+        amplitude and crosses the lower branch in one or two (shaw_pierre with 1 %
+        noise: 2 points below the first fold, 7 with the cap). No effect where
+        ``γ_max / γ >= 10``. Off by default (``scurve_campaign(scale_to_range=True)``
+        passes it on).
     start, previous : ForcedPoint, optional
         Resume from these (the last two recorded points).
 
@@ -580,6 +593,9 @@ def scurve_cbc(
     else:
         pt, prev = start, previous
     a_ref = amplitude_scale or 20.0 * max(pt.amplitude, 1e-12)
+    if scale_to_range and not amplitude_scale:
+        # at most twice the first amplitude's linear extrapolation to the top of the range
+        a_ref = min(a_ref, 2.0 * max(pt.amplitude, 1e-12) * hi / max(pt.forcing, 1e-300))
     g_ref = hi
     ds = opts.ds
     cur = pt
@@ -650,6 +666,7 @@ def _record(rig, opts, pt: ForcedPoint, points: list[ForcedPoint],
         on_point(pt)
 
 
+# ---------------------------------------------------------------------------------- FRC
 @dataclass
 class _FRCEval:
     """One evaluation of the FRC zero problem: the rig held at target ``y``, measured."""
@@ -683,18 +700,25 @@ def frc_cbc(
     with a finite-difference Jacobian (3 rig evaluations) updated by Broyden's rule; the
     first point is solved at fixed ``Ω = omega_range[0]``.
 
-    Acceptance (as for S-curves). With the higher harmonics converged the control is a
-    force ``u_1`` at the forcing frequency: the controlled response is the uncontrolled
-    response to the force plus ``u_1`` (exactly so when the actuator acts where the force
-    does, as on ``duffing``). A point is accepted when ``|u_1| <= tol k A_1^* + floor`` and
-    the higher harmonics' errors ``<= tol A_1^* + floor`` (``k = |k_p + iΩk_d|``), *and*
-    those floors are small: the control's fundamental known to ``precision · γ`` and the
-    response to ``precision · A_1^*`` (3σ). While a floor is too high the record is
-    extended (no re-settling) up to ``max_measure_periods``; a point that cannot be
-    verified is a failure ("noise floor too high ..."), never recorded, and a smaller
-    step cannot cure it. With noise, finite-difference steps are enlarged until the
-    change of ``G`` stands out of its noise, and Broyden updates use only changes well
-    above the noise.
+    Acceptance (the S-curves' rule, in the FRC's terms). With the higher harmonics
+    converged the control is a force ``u_1`` at the forcing frequency: the controlled
+    response is the uncontrolled response to the force plus ``u_1`` (exactly so where the
+    actuator acts where the force does, as on ``duffing``), so ``|u_1| / γ`` is the
+    forcing error of the point. It is accepted when ``|u_1| <= tol · γ + floor`` and the
+    higher harmonics' tracking errors ``<= tol · A_1^* + floor``, *and* those noise
+    floors (3σ) are small: the control's fundamental known to ``precision · γ``, the
+    response to ``precision · A_1^*``. While a floor is too high the record is extended
+    (the rig keeps running, no re-settling) up to ``max_measure_periods``; a point that
+    still cannot be verified is a failure ("noise floor too high ..."), never recorded,
+    and no smaller step is tried for it. (A test on ``|G| <= tol · A_1^*`` would be too
+    weak near resonance, where a strong controller makes the response follow the target:
+    there ``|u_1| = tol · k A_1^*`` is a forcing error of 0.3 % on duffing at γ = 0.01.)
+
+    With noise: finite-difference steps are enlarged until the change of ``G`` stands out
+    of its noise; Broyden updates use only changes well above the noise; Newton steps are
+    bounded (trust region ``2 ds``) and a step that raises the residual triggers a
+    finite-difference refresh of the Jacobian; where the residual is within a few noise
+    floors the records are doubled (Newton steps on noise would only wander).
     """
     opts = options or ForcedCBCOptions()
     w0, w1 = float(omega_range[0]), float(omega_range[1])
@@ -764,8 +788,9 @@ def frc_cbc(
     a_ref = 20.0 * a_first
     W = np.array([1.0 / a_ref**2, 1.0 / a_ref**2, 1.0 / om_ref**2])
 
-    def fd_jac(ev0: _FRCEval) -> np.ndarray:
-        """Finite-difference ``dG/dy`` at ``ev0.y``; steps grow until ``ΔG`` beats noise."""
+    def fd_jac(ev0: _FRCEval) -> tuple[np.ndarray, _FRCEval]:
+        """Finite-difference ``dG/dy`` at ``ev0.y`` (steps grow until ``ΔG`` beats the
+        noise) and a fresh evaluation at ``ev0.y`` (the rig is left there)."""
         y = ev0.y
         J = np.empty((2, 3))
         for j in range(3):
@@ -782,14 +807,21 @@ def frc_cbc(
                 h = min(h_max, h * min(10.0, 2.0 * need / max(float(np.linalg.norm(dg)),
                                                               1e-300)))
             J[:, j] = dg / h
-        evaluate(y)
-        return J
+        return J, evaluate(y)
 
-    def newton(y: np.ndarray, row: np.ndarray, c: float, J: np.ndarray
+    def newton(y: np.ndarray, row: np.ndarray, c: float, J: np.ndarray, radius: float
                ) -> tuple[_FRCEval | None, np.ndarray, str, int]:
+        """Newton–Broyden on ``G = 0`` and ``row · y = c`` from ``y``.
+
+        Steps are bounded by ``radius`` in the ``W`` norm (a trust region: a Broyden
+        Jacobian can point anywhere, and the rig must not be sent there); a step that
+        raises the residual above its noise triggers one finite-difference refresh of
+        ``J`` at the point before it.
+        """
         state["periods"] = float(opts.measure_periods)
         ev = evaluate(y)
         why = ""
+        refreshed = False
         for it in range(opts.newton_max + 1):
             conv, precise, f_floor = assess(ev)
             # converged as far as this record can tell: make sure it can tell enough
@@ -812,11 +844,24 @@ def frc_cbc(
             if it == opts.newton_max:
                 break
             # the residual is as small as the record it was measured on could tell: look
-            # for the next one with a record as long
+            # for the next one with a record as long -- twice as long where the residual
+            # is within a few noise floors (Newton steps on noise would only wander)
             state["periods"] = max(state["periods"], ev.r.periods)
+            near_noise = 4.0 * (opts.tol * forcing + ev.r.ufloor)
+            if ev.u <= near_noise:
+                state["periods"] = min(2.0 * state["periods"], opts.max_measure_periods)
             A = np.vstack([J, row[None, :]])
             dy = np.linalg.solve(A, np.concatenate([-ev.g, [c - row @ ev.y]]))
+            size = math.sqrt(float(dy @ (W * dy)))
+            if size > radius:
+                dy *= radius / size
             evn = evaluate(ev.y + dy)
+            if (evn.u > max(ev.u, 4.0 * (opts.tol * forcing + evn.r.ufloor))
+                    and not refreshed):
+                # the step made it worse: J is wrong -- refresh it where we came from
+                refreshed = True
+                J, ev = fd_jac(ev)
+                continue
             # Broyden only on changes well above the noise of G (noise would wreck J)
             if float(np.linalg.norm(J @ dy)) > 3.0 * max(ev.gfloor, evn.gfloor):
                 J = J + np.outer(evn.g - ev.g - J @ dy, dy * W) / (dy @ (dy * W))
@@ -837,8 +882,8 @@ def frc_cbc(
         _record(rig, opts, pt, points, on_point)
 
     y = np.array([p0[1], p0[q + 1], w0])
-    J = fd_jac(evaluate(y))
-    first, J, why, its = newton(y, np.array([0.0, 0.0, 1.0]), w0, J)
+    J, _ = fd_jac(evaluate(y))
+    first, J, why, its = newton(y, np.array([0.0, 0.0, 1.0]), w0, J, 2.0 * opts.ds_max)
     if first is None:
         fail(w0, f"first point: {why}", "at")
         return points, failures
@@ -855,13 +900,13 @@ def frc_cbc(
         y_pred = ys[-1] + ds * t
         row = W * t
         try:
-            new, Jn, why, its = newton(y_pred, row, float(row @ y_pred), J)
+            new, Jn, why, its = newton(y_pred, row, float(row @ y_pred), J, 2.0 * ds)
         except ConvergenceError as exc:
             new, why = None, f"rig failure: {exc}"
         if new is None:
             if ds > opts.ds / 16 and not isinstance(why, _NoiseLimited):
                 ds /= 2
-                J = fd_jac(evaluate(ys[-1]))
+                J, _ = fd_jac(evaluate(ys[-1]))
                 continue
             fail(float(y_pred[2]), why, "stopped near")
             break

@@ -453,8 +453,9 @@ def _forced(*, system, system_name, rig, dflt, out, resume, overrides, kp, kd, s
     from bifid.cbc._records import forced_record
     from bifid.data import append_record, forced_records, load_dataset
 
-    # noisy S-curves: the system's noisy_options (lower gains, longer records) unless given
-    noisy = protocol == "scurve" and any(
+    # noisy S-curves and FRCs: the system's noisy_options (lower gains, longer records)
+    # unless given
+    noisy = protocol in ("scurve", "frc") and any(
         float(v) > 0 for v in rig.describe().get("noise", {}).values())
     nz: dict[str, Any] = dict(dflt.noisy_options) if noisy else {}
     opts_kw: dict[str, Any] = dict(
