@@ -161,7 +161,7 @@ def diagram(noise_rel: float | None) -> dict:
 
 
 def campaign(noise_fraction: float) -> dict:
-    """The demo's campaign: scan at U = 17.5 m/s, then continuation round the cycle fold."""
+    """A continuation campaign: scan at U = 17.5 m/s, then continuation round the cycle fold."""
     import warnings
 
     from bifid.cbc import lco_campaign
@@ -320,7 +320,8 @@ def main() -> None:
     ]
     md += [
         "",
-        "### The demo's campaign: scan + continuation (`bifid.cbc.lco_campaign`)",
+        "### A continuation campaign: scan + continuation round the fold "
+        "(`bifid.cbc.lco_campaign`)",
         "",
         "`lco_campaign(\"flutter\", \"U\", 17.5, amplitudes=np.linspace(0.005, 0.037, 9), "
         "n_points=13, ds=0.8, bounds=(14.0, 17.6), noise_fraction=0.01, seed=3)`: amplitude "
