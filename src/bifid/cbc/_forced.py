@@ -689,8 +689,15 @@ def frc_cbc(
     omega_scale: float | None = None,
     on_point: Callable[[ForcedPoint], None] | None = None,
     on_iteration: Callable[[int], None] | None = None,
+    start: ForcedPoint | None = None,
+    previous: ForcedPoint | None = None,
 ) -> tuple[list[ForcedPoint], list[ForcedFailure]]:
     """Measure a frequency response curve at forcing ``γ`` over ``omega_range``.
+
+    ``start`` (and ``previous``, the point before it): continue a curve measured before
+    (``--resume``) from its last points instead of from ``omega_range[0]``; the rig is
+    brought onto ``start`` (its target held and settled) and the arclength steps go on
+    in the direction ``previous → start`` (else towards ``omega_range[1]``).
 
     Unknowns ``y = (A_1^*, B_1^*, Ω)``; equations ``G(y) = u_1 / |k_p + iΩk_d| = 0`` (the
     control's fundamental, cos and sin parts, in units of the response; the higher
@@ -881,16 +888,31 @@ def frc_cbc(
         pt.forcing_floor, pt.measured_periods = ev.r.ufloor / forcing, ev.r.periods
         _record(rig, opts, pt, points, on_point)
 
-    y = np.array([p0[1], p0[q + 1], w0])
-    J, _ = fd_jac(evaluate(y))
-    first, J, why, its = newton(y, np.array([0.0, 0.0, 1.0]), w0, J, 2.0 * opts.ds_max)
-    if first is None:
-        fail(w0, f"first point: {why}", "at")
-        return points, failures
-    record(first, its)
-    ys = [first.y]
-    ds = opts.ds
+    def y_of(pt: ForcedPoint) -> np.ndarray:
+        c = np.asarray(pt.target.coefficients, dtype=float)
+        if c.shape[0] != 2 * q + 1 or abs(pt.forcing - forcing) > 1e-12 * forcing:
+            raise BifidInputError(
+                f"cannot continue an FRC from a point with {(c.shape[0] - 1) // 2} "
+                f"harmonics at γ = {pt.forcing:g} (this one: {q} harmonics, γ = {forcing:g})."
+            )
+        return np.array([c[1], c[q + 1], float(pt.omega)])
+
     t = np.array([0.0, 0.0, direction])
+    if start is None:
+        y = np.array([p0[1], p0[q + 1], w0])
+        J, _ = fd_jac(evaluate(y))
+        first, J, why, its = newton(y, np.array([0.0, 0.0, 1.0]), w0, J, 2.0 * opts.ds_max)
+        if first is None:
+            fail(w0, f"first point: {why}", "at")
+            return points, failures
+        record(first, its)
+        ys = [first.y]
+    else:
+        # back onto the measured curve: hold the last target, settle, then go on
+        state["pstar"] = np.array(start.target.coefficients, dtype=float)
+        ys = ([y_of(previous)] if previous is not None else []) + [y_of(start)]
+        J, _ = fd_jac(evaluate(ys[-1]))
+    ds = opts.ds
     while len(points) < opts.max_points:
         if len(ys) >= 2:
             sec = ys[-1] - ys[-2]

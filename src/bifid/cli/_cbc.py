@@ -504,15 +504,12 @@ def _forced(*, system, system_name, rig, dflt, out, resume, overrides, kp, kd, s
             raise BifidInputError(f"--resume: {out} is not a forced dataset of {system_name!r}.")
         recs = forced_records(old)
         n_old = len(recs)
-        if protocol == "scurve" and recs:
+        if recs:
             pts_old = [_point_from_record(r) for r in recs[-2:]]
             if any(p is None for p in pts_old):
                 raise BifidInputError(f"--resume: {out} lacks the CBC target of its points.")
             start = pts_old[-1]
             previous = pts_old[0] if len(pts_old) == 2 else None
-        elif protocol == "frc" and recs:
-            raise BifidInputError("--resume is supported for ppcbc and scurve only; "
-                                  "start the FRC afresh with another --out.")
     points: list[Any] = []
 
     with _Bars(f"{protocol} {system_name}", None, quiet) as bars, \
@@ -530,7 +527,8 @@ def _forced(*, system, system_name, rig, dflt, out, resume, overrides, kp, kd, s
                                        previous=previous)
         else:
             _pts, failures = frc_cbc(rig, float(forcing), (w0, w1), opts, on_point=on_point,
-                                    on_iteration=bars.iteration)
+                                    on_iteration=bars.iteration, start=start,
+                                    previous=previous)
     for w in caught:
         _warn(str(w.message))
     key = "forcing" if protocol == "scurve" else "omega"
