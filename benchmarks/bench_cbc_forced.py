@@ -96,12 +96,16 @@ def log_slope(ref: dict, forcing: float, amplitude: float) -> float:
     return math.inf if df == 0 else (math.log(a[k + 1]) - math.log(a[k - 1])) / df
 
 
-def evaluate(name: str, pts: list, ref: dict) -> dict:
+def truth_errors(name: str, pts: list, distance, slope) -> tuple[list, list, list, int]:
+    """Per point: the distance to the continuation curve (``distance(p)``) and the
+    amplitude error against the uncontrolled response Newton-corrected at the point's
+    (γ, Ω), split by ``|slope(s, p, Vc, obs)| > STEEP`` (next to a fold, where that
+    comparison is ill-conditioned). Returns ``(err_far, err_near, dist, n_newton_fail)``."""
     s = get_system(name)
     obs = s.state_index(defaults_for(name).signal)
     err_far, err_near, dist, n_newton_fail = [], [], [], 0
     for p in pts:
-        dist.append(distance_to_curve(ref, p.forcing, p.amplitude))
+        dist.append(distance(p))
         m = p.measurement
         V = forced_orbit_from_samples(m.extra["states"], m.phase, p.force_phase, n_mesh=32)
         try:
@@ -110,8 +114,15 @@ def evaluate(name: str, pts: list, ref: dict) -> dict:
             n_newton_fail += 1
             continue
         e = abs(p.amplitude / float(max_abs(Vc[:, obs])) - 1.0)
-        steep = abs(log_slope(ref, p.forcing, p.amplitude)) > STEEP
+        steep = abs(slope(s, p, Vc, obs)) > STEEP
         (err_near if steep else err_far).append(e)
+    return err_far, err_near, dist, n_newton_fail
+
+
+def evaluate(name: str, pts: list, ref: dict) -> dict:
+    err_far, err_near, dist, n_newton_fail = truth_errors(
+        name, pts, lambda p: distance_to_curve(ref, p.forcing, p.amplitude),
+        lambda s, p, Vc, obs: log_slope(ref, p.forcing, p.amplitude))
     got = sorted(f["forcing"] for f in folds_of(pts))
     fold_err = ([g / r - 1.0 for g, r in zip(got, ref["folds"], strict=True)]
                 if len(got) == len(ref["folds"]) else None)
@@ -235,21 +246,8 @@ def gamma_sensitivity(s, p, Vc, obs: int, rel: float = 2e-3) -> float:
 
 
 def frc_evaluate(name: str, pts: list, ref: dict) -> dict:
-    s = get_system(name)
-    obs = s.state_index(defaults_for(name).signal)
-    err_far, err_near, dist, n_newton_fail = [], [], [], 0
-    for p in pts:
-        dist.append(frc_distance(ref, p.omega, p.amplitude))
-        m = p.measurement
-        V = forced_orbit_from_samples(m.extra["states"], m.phase, p.force_phase, n_mesh=32)
-        try:
-            Vc = correct_forced(s, p.omega, p.forcing, V, n_mesh=32)
-        except ConvergenceError:
-            n_newton_fail += 1
-            continue
-        e = abs(p.amplitude / float(max_abs(Vc[:, obs])) - 1.0)
-        steep = abs(gamma_sensitivity(s, p, Vc, obs)) > STEEP
-        (err_near if steep else err_far).append(e)
+    err_far, err_near, dist, n_newton_fail = truth_errors(
+        name, pts, lambda p: frc_distance(ref, p.omega, p.amplitude), gamma_sensitivity)
     got = sorted(f["omega"] for f in folds_of(pts, "omega"))
     ok = len(got) == len(ref["folds"]) == 2
     width = ref["folds"][1] - ref["folds"][0] if len(ref["folds"]) == 2 else math.nan
