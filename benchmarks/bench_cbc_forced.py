@@ -179,6 +179,20 @@ def _pct(x: float, digits: int = 2) -> str:
     return "–" if not np.isfinite(x) else f"{100 * x:.{digits}f} %"
 
 
+def _cells(r: dict, fold_digits: int) -> tuple[str, str, str]:
+    """The noise, folds and failures cells that both tables share."""
+    noise = "0" if r["fraction"] == 0 else f"{r['fraction']:.1%} ({r['sigma']:.2g})"
+    if r["fold_err"] is None:
+        folds = f"{len(r['folds'])} found"
+    else:
+        folds = ", ".join(f"{g:.5f} ({e:+.{fold_digits}%})" for g, e in
+                          zip(r["folds"], r["fold_err"], strict=True))
+    fails = str(len(r["failures"]))
+    if r["failures"]:
+        fails += ": " + str(r["failures"][0])[:90].replace("|", "/")
+    return noise, folds, fails
+
+
 def table(rows: list[dict]) -> str:
     head = ("| system | noise σ | seed | γ from | points (middle) | max amp. err, same γ "
             "| steep (n) | max dist. to curve | folds: CBC (err) | failures "
@@ -186,15 +200,7 @@ def table(rows: list[dict]) -> str:
             "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
     lines = []
     for r in rows:
-        noise = "0" if r["fraction"] == 0 else f"{r['fraction']:.1%} ({r['sigma']:.2g})"
-        if r["fold_err"] is None:
-            folds = f"{len(r['folds'])} found"
-        else:
-            folds = ", ".join(f"{g:.5f} ({e:+.2%})" for g, e in
-                              zip(r["folds"], r["fold_err"], strict=True))
-        fails = str(len(r["failures"]))
-        if r["failures"]:
-            fails += ": " + str(r["failures"][0])[:90].replace("|", "/")
+        noise, folds, fails = _cells(r, 2)
         lines.append(
             f"| {r['system']} | {noise} | {r['seed']} | {r['lo']:g} | {r['n']} ({r['middle']}) "
             f"| {_pct(r['err_far'])} | {_pct(r['err_near'])} ({r['n_near']}) "
@@ -295,16 +301,9 @@ def frc_table(rows: list[dict]) -> str:
             "|---|---|---|---|---|---|---|---|---|---|---|---|\n")
     lines = []
     for r in rows:
-        noise = "0" if r["fraction"] == 0 else f"{r['fraction']:.1%} ({r['sigma']:.2g})"
-        if r["fold_err"] is None:
-            folds = f"{len(r['folds'])} found"
-        else:
-            folds = (", ".join(f"{g:.5f} ({e:+.4%})" for g, e in
-                               zip(r["folds"], r["fold_err"], strict=True))
-                     + f"; {r['fold_width']:.1%}")
-        fails = str(len(r["failures"]))
-        if r["failures"]:
-            fails += ": " + str(r["failures"][0])[:90].replace("|", "/")
+        noise, folds, fails = _cells(r, 4)
+        if r["fold_err"] is not None:
+            folds += f"; {r['fold_width']:.1%}"
         lines.append(
             f"| {r['system']} | {noise} | {r['seed']} | {r['n']} | {_pct(r['err_far'])} "
             f"| {_pct(r['err_near'])} ({r['n_near']}) | {_pct(r['dist'])} | {folds} "

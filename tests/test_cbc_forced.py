@@ -126,16 +126,23 @@ def test_band_noise_is_the_scatter_of_a_fundamental_of_blue_noise():
         assert np.mean(white) / 3 > 10 * rms
 
 
-def _noisy_duffing(gains: float, lo: float, max_points: int, **opts):
-    """A duffing S-curve (Ω = 1.05) with σ = 1 % of its largest amplitude (0.63) on q."""
+def _noisy_run(sigma: float, gains: float, max_points: int, protocol, **opts):
+    """``protocol(rig, options)`` on a duffing rig with noise ``sigma`` on q; returns the
+    system, points, failures and the ConvergenceWarnings raised."""
     s = get_system("duffing")
-    rig = VirtualRig(s, sample_rate=100.0, noise={"q": 0.0063}, seed=3, record_states=True)
+    rig = VirtualRig(s, sample_rate=100.0, noise={"q": sigma}, seed=3, record_states=True)
     o = ForcedCBCOptions(signal="q", kp=gains, kd=gains, n_harmonics=3, settle_periods=20,
                          measure_periods=3, max_points=max_points, **opts)
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
-        pts, fails = scurve_cbc(rig, 1.05, (lo, 0.03), o)
+        pts, fails = protocol(rig, o)
     return s, pts, fails, [w for w in caught if issubclass(w.category, ConvergenceWarning)]
+
+
+def _noisy_duffing(gains: float, lo: float, max_points: int, **opts):
+    """A duffing S-curve (Ω = 1.05) with σ = 1 % of its largest amplitude (0.63) on q."""
+    return _noisy_run(0.0063, gains, max_points,
+                      lambda rig, o: scurve_cbc(rig, 1.05, (lo, 0.03), o), **opts)
 
 
 def _amplitude_error(s, p) -> float:
@@ -190,14 +197,8 @@ def test_noisy_scurve_points_are_responses_of_the_uncontrolled_system():
 # ------------------------------------------------------------ FRC with measurement noise
 def _noisy_frc(gains: float, max_points: int, **opts):
     """A duffing FRC at γ = 0.01 from Ω = 0.95 up, σ = 1 % of its largest amplitude (0.48)."""
-    s = get_system("duffing")
-    rig = VirtualRig(s, sample_rate=100.0, noise={"q": 0.0048}, seed=3, record_states=True)
-    o = ForcedCBCOptions(signal="q", kp=gains, kd=gains, n_harmonics=3, settle_periods=20,
-                         measure_periods=3, max_points=max_points, **opts)
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        pts, fails = frc_cbc(rig, 0.01, (0.95, 1.1), o)
-    return s, pts, fails, [w for w in caught if issubclass(w.category, ConvergenceWarning)]
+    return _noisy_run(0.0048, gains, max_points,
+                      lambda rig, o: frc_cbc(rig, 0.01, (0.95, 1.1), o), **opts)
 
 
 def test_noisy_frc_points_are_responses_of_the_uncontrolled_system():

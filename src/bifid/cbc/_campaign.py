@@ -239,7 +239,7 @@ def scurve_campaign(
     ConvergenceError
         If not a single point converged (the failures are in the message).
     """
-    from bifid.cbc._forced import ForcedCBCOptions, scurve_cbc
+    from bifid.cbc._forced import scurve_cbc
     from bifid.cbc._records import forced_record
     from bifid.data import append_record, forced_dataset
 
@@ -256,14 +256,8 @@ def scurve_campaign(
     nz = _noise_map(noise, None, {}, outputs)
     rig = dflt.rig(s, over, **{"outputs": outputs, "noise": nz, "seed": seed,
                                **dict(rig_options or {})})
-    kw: dict[str, Any] = dict(signal=signal, kp=dflt.kp, kd=dflt.kd,
-                              n_harmonics=dflt.n_harmonics,
-                              settle_periods=dflt.settle_periods,
-                              measure_periods=dflt.measure_periods)
-    if nz and any(v > 0 for v in nz.values()):
-        kw.update(dflt.noisy_options)
-    kw.update(dict(options or {}))
-    opts = ForcedCBCOptions(**kw)
+    opts = dflt.forced_options(noisy=bool(nz) and any(v > 0 for v in nz.values()),
+                               **{"signal": signal, **dict(options or {})})
     settings = _settings(protocol="scurve-campaign", system=system, omegas=oms,
                          forcing_range=list(forcing_range), options=opts.to_json(),
                          rig=rig.describe(), noise=nz, seed=seed,

@@ -88,6 +88,20 @@ class CBCDefaults:
         kw.update(overrides)
         return PPCBCOptions(**kw)
 
+    def forced_options(self, *, noisy: bool = False, **overrides: Any):
+        """:class:`~bifid.cbc.ForcedCBCOptions` with these defaults, the system's
+        ``noisy_options`` when the measurements are noisy, then ``overrides``."""
+        from bifid.cbc._forced import ForcedCBCOptions
+
+        kw: dict[str, Any] = dict(signal=self.signal, kp=self.kp, kd=self.kd,
+                                  n_harmonics=self.n_harmonics,
+                                  settle_periods=self.settle_periods,
+                                  measure_periods=self.measure_periods)
+        if noisy:
+            kw.update(self.noisy_options)
+        kw.update(overrides)
+        return ForcedCBCOptions(**kw)
+
     def rig(self, system, params=None, **overrides: Any):
         """A :class:`~bifid.cbc.VirtualRig` of ``system`` with these defaults."""
         from bifid.cbc._virtual import VirtualRig

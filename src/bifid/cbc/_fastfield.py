@@ -29,7 +29,8 @@ from bifid.systems import System, flutter_matrices
 
 Array = jnp.ndarray
 
-__all__ = ["PreparedField", "check_prepared", "prepared_field"]
+__all__ = ["PreparedField", "check_batched", "check_prepared", "jax_vmap_field",
+           "prepared_field"]
 
 
 @dataclass(frozen=True)
@@ -103,11 +104,39 @@ def _discrepancy(field: Callable, prepared: PreparedField) -> Callable:
     return run
 
 
+def _probe_states(scale: np.ndarray) -> np.ndarray:
+    """The origin and four seeded random states of size ``scale`` (what checks compare on)."""
+    rng = np.random.default_rng(7)
+    return np.vstack([np.zeros((1, len(scale))), rng.normal(size=(4, len(scale))) * scale])
+
+
 def check_prepared(
     system: System, prepared: PreparedField, p: Array, scale: np.ndarray, rtol: float = 1e-9
 ) -> bool:
     """Does ``prepared`` agree with ``system.field`` at ``p`` on a few random states?"""
-    rng = np.random.default_rng(7)
-    xs = np.vstack([np.zeros((1, len(scale))), rng.normal(size=(4, len(scale))) * scale])
+    xs = _probe_states(scale)
     err, size = _discrepancy(system.field, prepared)(jnp.asarray(xs), jnp.asarray(p))
     return bool(err <= rtol * (1e-12 + float(size)))
+
+
+@functools.lru_cache(maxsize=32)
+def _vmapped(field: Callable) -> Callable:
+    return jax.jit(jax.vmap(field, in_axes=(0, None)))
+
+
+def jax_vmap_field(system: System) -> Callable:
+    """``system.field`` vectorised over states (compiled once per field)."""
+    return _vmapped(system.field)
+
+
+def check_batched(
+    system: System, batch: Callable[[np.ndarray], np.ndarray], p: np.ndarray,
+    scale: np.ndarray, rtol: float = 1e-9,
+) -> bool:
+    """:func:`check_prepared` for a field outside JAX (e.g. the numba engine's):
+    ``batch(xs)`` evaluates it on each row of ``xs``."""
+    xs = _probe_states(scale)
+    got = np.asarray(batch(xs))
+    ref = np.asarray(jax_vmap_field(system)(jnp.asarray(xs), jnp.asarray(p)))
+    return bool(np.all(np.isfinite(got))
+                and np.max(np.abs(got - ref)) <= rtol * (1e-12 + np.max(np.abs(ref))))

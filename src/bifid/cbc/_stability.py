@@ -18,7 +18,6 @@ Two questions, two tools:
 
 from __future__ import annotations
 
-import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
@@ -27,6 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bifid.cbc._controllers import AbstractTarget, PDController, PolarTarget
+from bifid.cbc._fastfield import jax_vmap_field
 from bifid.cbc._fourier import polar_project
 from bifid.cbc._rig import AbstractRig, Measurement
 from bifid.errors import BifidInputError
@@ -268,17 +268,6 @@ def orbit_polar_target(
     coef = polar_project(np.arctan2(xi2, xi1), np.hypot(xi1, xi2), n_harmonics)
     return frame.with_coefficients(coef)
 
-
-@functools.lru_cache(maxsize=16)
-def _vmapped(field: Callable) -> Callable:
-    import jax
-
-    return jax.jit(jax.vmap(field, in_axes=(0, None)))
-
-
-def jax_vmap_field(system: System) -> Callable:
-    """``system.field`` vectorised over states (compiled once per field)."""
-    return _vmapped(system.field)
 
 
 def controlled_floquet(

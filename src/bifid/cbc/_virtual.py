@@ -55,7 +55,12 @@ from bifid.cbc._controllers import (
     PDController,
     target_to_json,
 )
-from bifid.cbc._fastfield import PreparedField, check_prepared, prepared_field
+from bifid.cbc._fastfield import (
+    PreparedField,
+    check_batched,
+    check_prepared,
+    prepared_field,
+)
 from bifid.cbc._rig import AbstractRig, Measurement
 from bifid.errors import BifidInputError, ConvergenceError, ConvergenceWarning
 from bifid.systems import System
@@ -222,12 +227,6 @@ def _block_fn(st: _Static) -> Callable:
     return jax.jit(block)
 
 
-@functools.lru_cache(maxsize=32)
-def _batched_field(field: Callable) -> Callable:
-    """``field`` over a batch of states, compiled once per field."""
-    return jax.jit(jax.vmap(field, in_axes=(0, None)))
-
-
 def _noise_vector(noise: Any, names: tuple[str, ...]) -> np.ndarray:
     if noise is None:
         return np.zeros(len(names))
@@ -328,6 +327,7 @@ class VirtualRig(AbstractRig):
             system.state_index(n)
         self._outputs = names
         self._out_idx = tuple(system.state_index(n) for n in names)
+        self._out_idx_arr = np.asarray(self._out_idx, dtype=np.int64)
         sr = float(sample_rate)
         if not (math.isfinite(sr) and sr > 0):
             raise BifidInputError(
@@ -355,7 +355,6 @@ class VirtualRig(AbstractRig):
         self._block = int(block)
         self._record_states = bool(record_states)
         self._seed = int(seed)
-        self._n_blocks_run = 0
         self.trips = 0
         self._rng = np.random.default_rng(self._seed)
         if engine not in ("auto", "numba", "jax"):
@@ -563,7 +562,9 @@ class VirtualRig(AbstractRig):
         self._directions = (b, e)
         if self._numba_ok:
             self._numba_consts = _fastloop.prepare_constants(self.system.name, self._p)
-            if not self._numba_agrees():
+            sid, consts = _fastloop.SYSTEM_IDS[self.system.name], self._numba_consts
+            if not check_batched(self.system, lambda xs: _fastloop.field_batch(sid, xs, consts),
+                                 self._p, np.full(self.system.n_states, 0.1)):
                 if self._engine_request == "numba":
                     raise BifidInputError(
                         f"the numba field of {self.system.name!r} disagrees with system.field "
@@ -596,18 +597,6 @@ class VirtualRig(AbstractRig):
                 stacklevel=3,
             )
             self._field = self._generic
-
-    def _numba_agrees(self, rtol: float = 1e-9) -> bool:
-        """Does the compiled field equal ``system.field`` at the rig's parameters?"""
-        rng = np.random.default_rng(7)
-        n = self.system.n_states
-        xs = np.vstack([np.zeros((1, n)), rng.normal(size=(4, n)) * 0.1])
-        got = _fastloop.field_batch(_fastloop.SYSTEM_IDS[self.system.name], xs,
-                                    self._numba_consts)
-        ref = np.asarray(_batched_field(self.system.field)(jnp.asarray(xs),
-                                                          jnp.asarray(self._p)))
-        err = np.max(np.abs(got - ref))
-        return bool(np.all(np.isfinite(got)) and err <= rtol * (1e-12 + np.max(np.abs(ref))))
 
     def _trip(self) -> None:
         self._x = jnp.zeros(self.system.n_states)
@@ -662,7 +651,7 @@ class VirtualRig(AbstractRig):
         kp, kd = (float(self._gains[0]), float(self._gains[1])) if on else (0.0, 0.0)
         uprev, _n_done = _fastloop.run_block(
             _fastloop.SYSTEM_IDS[self.system.name], self._numba_consts, b, e,
-            x, yprev, dfilt, float(self._uprev), np.asarray(self._out_idx, dtype=np.int64),
+            x, yprev, dfilt, float(self._uprev), self._out_idx_arr,
             np.ascontiguousarray(eps, dtype=np.float64),
             self._forcing_on, float(self._gamma if self._forcing_on else 0.0),
             float(self._Omega), float(self._psi), float(theta),
@@ -708,7 +697,6 @@ class VirtualRig(AbstractRig):
             block_eps[:m] = eps[done : done + m]
             carry, o = fn(carry, dyn, scal, block_eps)
             outs.append((m, o))
-            self._n_blocks_run += 1
             done += m
             theta = math.fmod(theta + self._Omega * m * dt, 2.0 * math.pi)
         self._x, self._yprev, self._dfilt, self._uprev = carry

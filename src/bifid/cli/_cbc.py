@@ -449,25 +449,17 @@ def _segments(truth, name):
 def _forced(*, system, system_name, rig, dflt, out, resume, overrides, kp, kd, settle, measure,
             tol, stability, n_harmonics, plot, truth, json_out, quiet, seed, noise, derivative,
             ds, protocol, omega, forcing_range, forcing, omega_range, signal) -> None:
-    from bifid.cbc._forced import ForcedCBCOptions, folds_of, frc_cbc, scurve_cbc
+    from bifid.cbc._forced import folds_of, frc_cbc, scurve_cbc
     from bifid.cbc._records import forced_record
     from bifid.data import append_record, forced_records, load_dataset
 
     # noisy S-curves and FRCs: the system's noisy_options (lower gains, longer records)
     # unless given
-    noisy = protocol in ("scurve", "frc") and any(
-        float(v) > 0 for v in rig.describe().get("noise", {}).values())
-    nz: dict[str, Any] = dict(dflt.noisy_options) if noisy else {}
-    opts_kw: dict[str, Any] = dict(
-        signal=signal, kp=nz.pop("kp", dflt.kp) if kp is None else kp,
-        kd=nz.pop("kd", dflt.kd) if kd is None else kd,
-        n_harmonics=n_harmonics or dflt.n_harmonics,
-        settle_periods=settle or nz.pop("settle_periods", dflt.settle_periods),
-        measure_periods=measure or nz.pop("measure_periods", dflt.measure_periods),
-    )
-    for k in ("kp", "kd", "settle_periods", "measure_periods"):
-        nz.pop(k, None)
-    opts_kw.update(nz)
+    noisy = any(float(v) > 0 for v in rig.describe().get("noise", {}).values())
+    given = dict(kp=kp, kd=kd, n_harmonics=n_harmonics or None, settle_periods=settle or None,
+                 measure_periods=measure or None)
+    opts_kw: dict[str, Any] = {"signal": signal,
+                               **{k: v for k, v in given.items() if v is not None}}
     if tol is not None:
         opts_kw["tol"] = tol
     if stability is not None:
@@ -475,7 +467,7 @@ def _forced(*, system, system_name, rig, dflt, out, resume, overrides, kp, kd, s
     if ds is not None:
         opts_kw["ds"] = ds
         opts_kw["ds_max"] = max(ds, 0.1)
-    opts = ForcedCBCOptions(**opts_kw)
+    opts = dflt.forced_options(noisy=noisy, **opts_kw)
     if protocol == "scurve":
         if omega is None or forcing_range is None:
             raise BifidInputError("scurve needs --omega W and --forcing-range A B.")
