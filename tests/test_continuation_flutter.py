@@ -62,7 +62,7 @@ def test_unstable_branch_folds_into_stable_branch(flutter):
     assert 14.5 < fold.param < 15.5
     assert fold.param <= br.params.min() + 1e-9  # the fold is the leftmost point
     # a fold is a parameter extremum: it lies just beyond both bracketing points
-    lo, _hi = sorted(fold.interval)
+    lo, _hi = sorted(fold.bracket)
     assert lo - 0.01 < fold.param <= lo + 1e-12
 
 

@@ -27,7 +27,7 @@ def test_hopf_point_and_lyapunov_coefficient(subcritical):
     assert abs(h.data["omega"] - OMEGA0) < 1e-10
     assert h.data["lyapunov"] == pytest.approx(2 * A2 / OMEGA0, rel=1e-8)
     assert h.data["criticality"] == "subcritical"
-    assert h.interval[0] <= h.param <= h.interval[1] or h.interval[1] <= h.param <= h.interval[0]
+    assert h.bracket[0] <= h.param <= h.bracket[1] or h.bracket[1] <= h.param <= h.bracket[0]
 
 
 def test_orbit_radius_period_and_fold_match_closed_form(subcritical):
@@ -44,7 +44,7 @@ def test_orbit_radius_period_and_fold_match_closed_form(subcritical):
     k = fold.index
     assert not br.stable[1 : k + 1].any()
     assert br.stable[k + 2 :].all()
-    assert br.status == "bounds" and br.params[-1] == pytest.approx(1.0, abs=1e-12)
+    assert br.status == "range" and br.params[-1] == pytest.approx(1.0, abs=1e-12)
 
 
 def test_supercritical_case_has_negative_l1_and_stable_orbits():

@@ -180,7 +180,7 @@ def continue_cmd(
                 for br in branches for sp in br.special("cycle_fold")
             ],
             "secondary": [
-                {"kind": sp.kind, "param": sp.param, "interval": list(sp.interval)}
+                {"kind": sp.kind, "param": sp.param, "bracket": list(sp.bracket)}
                 for br in branches for sp in br.special_points
                 if sp.kind in ("period_doubling", "torus", "branch_point")
             ],

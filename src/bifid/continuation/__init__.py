@@ -7,6 +7,7 @@ orbits or forced responses), :func:`palc` is the algorithm, and
 carrying its special points.
 """
 
+from bifid.continuation._branch import END_REASONS, Branch, Candidate, SpecialPoint
 from bifid.continuation._collocation import (
     continue_from_hopf,
     hopf_orbits,
@@ -14,6 +15,7 @@ from bifid.continuation._collocation import (
     periodic_orbits,
     resample_orbit,
 )
+from bifid.continuation._diagram import Diagram
 from bifid.continuation._equilibria import (
     equilibria,
     equilibrium_problem,
@@ -31,14 +33,35 @@ from bifid.continuation._fourier import (
     max_abs,
     spectral_tail,
 )
-from bifid.continuation._options import Branch, ContinuationOptions, SpecialPoint
-from bifid.continuation._palc import PalcResult, ZeroProblem, correct, palc, tangent_at
+from bifid.continuation._options import ContinuationOptions
+from bifid.continuation._palc import (
+    AbstractCorrector,
+    Continuation,
+    ContinuationState,
+    Correction,
+    NewtonCorrector,
+    PalcResult,
+    Step,
+    ZeroProblem,
+    correct,
+    palc,
+    tangent_at,
+)
 
 __all__ = [
+    "END_REASONS",
+    "AbstractCorrector",
     "Branch",
+    "Candidate",
+    "Continuation",
     "ContinuationOptions",
+    "ContinuationState",
+    "Correction",
+    "Diagram",
+    "NewtonCorrector",
     "PalcResult",
     "SpecialPoint",
+    "Step",
     "ZeroProblem",
     "backbone",
     "continue_from_hopf",

@@ -24,6 +24,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from bifid.continuation._branch import Branch, SpecialPoint
 from bifid.continuation._equilibria import equilibria
 from bifid.continuation._floquet import autonomous_rhs, floquet_multipliers
 from bifid.continuation._fourier import (
@@ -33,7 +34,7 @@ from bifid.continuation._fourier import (
     max_abs,
     spectral_tail,
 )
-from bifid.continuation._options import Branch, ContinuationOptions, SpecialPoint
+from bifid.continuation._options import ContinuationOptions
 from bifid.continuation._palc import ZeroProblem, correct, palc
 from bifid.errors import BifidInputError, ConvergenceError
 from bifid.systems import System
@@ -258,7 +259,7 @@ def periodic_orbits(
     w = _orbit_weights(M, n)
     result = palc(problem, y0, t0, args, options, weights=w, update_args=update,
                   progress=progress, correct_start=False)
-    pseudo_hopf = SpecialPoint(kind="start", param=lam0, index=0, interval=(lam0, lam0),
+    pseudo_hopf = SpecialPoint(kind="start", param=lam0, index=0, bracket=(lam0, lam0),
                                solution=y0, data={})
     return _orbit_branch(system, param, p, result.ys, result, options, M, pseudo_hopf,
                          resolution_tol, offset=0)
@@ -286,7 +287,7 @@ def _orbit_branch(system, param, p, ys, result, options, M, hopf, resolution_tol
         specials.append(
             SpecialPoint(
                 kind="cycle_fold", param=float(y_f[M * n + 1]), index=i + offset,
-                interval=(float(params[i + offset]), float(params[i + offset + 1])),
+                bracket=(float(params[i + offset]), float(params[i + offset + 1])),
                 solution=y_f[: M * n + 1], precision=prec, status="converged",
                 data={"period": float(y_f[M * n]), "amplitude": max_abs(V),
                       "amplitude_centred": max_abs(V - V.mean(axis=0)),
@@ -296,7 +297,7 @@ def _orbit_branch(system, param, p, ys, result, options, M, hopf, resolution_tol
     for i in result.branch_points:
         specials.append(
             SpecialPoint(kind="branch_point", param=float(params[i + offset]), index=i + offset,
-                         interval=(float(params[i + offset]), float(params[i + offset + 1])),
+                         bracket=(float(params[i + offset]), float(params[i + offset + 1])),
                          solution=ys[i + offset, : M * n + 1], status="guess")
         )
     specials.extend(_secondary_from_floquet(mults, params, ys, M, n))
@@ -311,6 +312,7 @@ def _orbit_branch(system, param, p, ys, result, options, M, hopf, resolution_tol
               "amplitude_centred": np.array([max_abs(o - o.mean(axis=0)) for o in orbits]),
               "floquet": mults, "floquet_max": fmax, "spectral_tail": tails},
         p=np.asarray(p), status=result.status, message=result.message, options=options,
+        signals=tuple(system.states),
         meta={"n_mesh": M, "states": list(system.states), "start_param": hopf.param,
               "start_kind": hopf.kind},
     )
@@ -334,7 +336,7 @@ def _secondary_from_floquet(mults, params, ys, M, n) -> list[SpecialPoint]:
             if a != b:
                 out.append(
                     SpecialPoint(kind=kind, param=float(0.5 * (params[i - 1] + params[i])),
-                                 index=i - 1, interval=(float(params[i - 1]), float(params[i])),
+                                 index=i - 1, bracket=(float(params[i - 1]), float(params[i])),
                                  solution=ys[i, : M * n + 1], status="guess")
                 )
         prev = cur

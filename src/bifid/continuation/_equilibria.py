@@ -32,7 +32,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bifid.continuation._options import Branch, ContinuationOptions, SpecialPoint
+from bifid.continuation._branch import Branch, SpecialPoint
+from bifid.continuation._options import ContinuationOptions
 from bifid.continuation._palc import ZeroProblem, correct, palc
 from bifid.errors import BifidInputError, ConvergenceError
 from bifid.systems import System
@@ -225,7 +226,7 @@ def locate_hopf(
         kind="hopf",
         param=lam,
         index=-1,
-        interval=(lam, lam),
+        bracket=(lam, lam),
         solution=x,
         precision=float(err) + 1e-14,
         status="converged",
@@ -338,24 +339,24 @@ def equilibria(
                 sp = locate_hopf(system, param, guess[:-1], float(guess[-1]), p)
             except ConvergenceError:
                 sp = SpecialPoint(
-                    kind="hopf", param=float(guess[-1]), index=i, interval=(a[-1], b[-1]),
+                    kind="hopf", param=float(guess[-1]), index=i, bracket=(a[-1], b[-1]),
                     solution=guess[:-1], status="guess",
                     data={"omega": float(np.abs(eigs[i].imag).max()), "lyapunov": float("nan"),
                           "criticality": "unknown"},
                 )
             sp.index = i
-            sp.interval = (float(a[-1]), float(b[-1]))
+            sp.bracket = (float(a[-1]), float(b[-1]))
             specials.append(sp)
     for i, y_f, prec in result.folds:
         specials.append(
             SpecialPoint(kind="fold", param=float(y_f[-1]), index=i,
-                         interval=(float(ys[i][-1]), float(ys[i + 1][-1])),
+                         bracket=(float(ys[i][-1]), float(ys[i + 1][-1])),
                          solution=y_f[:-1], precision=prec, status="converged")
         )
     for i in result.branch_points:
         specials.append(
             SpecialPoint(kind="branch_point", param=float(0.5 * (ys[i][-1] + ys[i + 1][-1])),
-                         index=i, interval=(float(ys[i][-1]), float(ys[i + 1][-1])),
+                         index=i, bracket=(float(ys[i][-1]), float(ys[i + 1][-1])),
                          solution=ys[i][:-1], status="guess")
         )
     specials.sort(key=lambda s: s.index)
@@ -364,7 +365,7 @@ def equilibria(
         solutions=ys[:, :-1], stable=stable, special_points=specials,
         data={"eigenvalues": eigs, "state": ys[:, :-1]}, p=np.asarray(p),
         status=result.status, message=result.message, options=options,
-        meta={"states": list(system.states)},
+        signals=tuple(system.states), meta={"states": list(system.states)},
     )
 
 

@@ -9,8 +9,8 @@ from typing import Any
 
 import numpy as np
 
+from bifid.continuation._branch import Branch
 from bifid.continuation._fourier import evaluate_fourier, fourier_coefficients
-from bifid.continuation._options import Branch
 from bifid.systems import System
 
 

@@ -22,6 +22,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from bifid.continuation._branch import Branch, SpecialPoint
 from bifid.continuation._floquet import floquet_multipliers
 from bifid.continuation._fourier import (
     check_resolution,
@@ -31,7 +32,7 @@ from bifid.continuation._fourier import (
     max_abs,
     spectral_tail,
 )
-from bifid.continuation._options import Branch, ContinuationOptions, SpecialPoint
+from bifid.continuation._options import ContinuationOptions
 from bifid.continuation._palc import ZeroProblem, correct, palc
 from bifid.errors import BifidInputError, ConvergenceError
 from bifid.systems import System
@@ -117,7 +118,7 @@ def _forced_branch(system, kind, param, ys, result, p, idx_free, M, options, obs
         specials.append(
             SpecialPoint(
                 kind="fold", param=float(y_f[M * n + pidx]), index=i,
-                interval=(float(ys[i, M * n]), float(ys[i + 1, M * n])),
+                bracket=(float(ys[i, M * n]), float(ys[i + 1, M * n])),
                 solution=y_f, precision=prec, status="converged",
                 data={"amplitude": float(max_abs(V[:, obs])), "omega": float(
                     y_f[M * n] if param == "Omega" else p[system.index("Omega")]),
@@ -127,7 +128,7 @@ def _forced_branch(system, kind, param, ys, result, p, idx_free, M, options, obs
     for i in result.branch_points:
         specials.append(
             SpecialPoint(kind="branch_point", param=float(ys[i, M * n]), index=i,
-                         interval=(float(ys[i, M * n]), float(ys[i + 1, M * n])),
+                         bracket=(float(ys[i, M * n]), float(ys[i + 1, M * n])),
                          solution=ys[i], status="guess")
         )
     return Branch(
@@ -137,6 +138,7 @@ def _forced_branch(system, kind, param, ys, result, p, idx_free, M, options, obs
               "omega": omega, "forcing": forcing, "period": periods, "floquet": mults,
               "floquet_max": fmax, "spectral_tail": tails},
         p=np.asarray(p), status=result.status, message=result.message, options=options,
+        signals=tuple(system.states),
         meta={"n_mesh": M, "states": list(system.states), "observed": observed},
     )
 

@@ -1,12 +1,10 @@
-"""Continuation options and result types (Branch, SpecialPoint)."""
+"""Continuation options: the numbers that steer a predictor–corrector run."""
 
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field, replace
-from typing import Any, Literal
-
-import numpy as np
+from dataclasses import dataclass, replace
+from typing import Any
 
 from bifid.errors import BifidInputError
 
@@ -70,101 +68,3 @@ class ContinuationOptions:
     def with_(self, **changes: Any) -> ContinuationOptions:
         """A copy with some fields changed (checked again)."""
         return replace(self, **changes)
-
-
-SpecialKind = Literal[
-    "hopf", "fold", "cycle_fold", "period_doubling", "torus", "branch_point", "endpoint"
-]
-
-
-@dataclass
-class SpecialPoint:
-    """A special point found on a branch.
-
-    Attributes
-    ----------
-    kind : str
-        "hopf", "fold", "cycle_fold", "period_doubling", "torus", "branch_point".
-    param : float
-        Parameter value at the point.
-    index : int
-        Index of the branch point just before it.
-    interval : (float, float)
-        Parameter values of the two branch points that bracket it;
-        ``min(interval) <= param <= max(interval)`` up to ``precision``.
-    solution : ndarray
-        The unknown vector at the point (state / mesh values, without the parameter).
-    precision : float
-        Estimated accuracy of ``param``.
-    status : {"converged", "guess"}
-        "converged" when located by an accurate solve, "guess" when only bracketed.
-    data : dict
-        Extra numbers (``omega``, ``lyapunov``, ``criticality``, ``period``, ``amplitude``...).
-    """
-
-    kind: str
-    param: float
-    index: int
-    interval: tuple[float, float]
-    solution: np.ndarray
-    precision: float = float("nan")
-    status: Literal["converged", "guess"] = "guess"
-    data: dict[str, Any] = field(default_factory=dict)
-
-
-@dataclass
-class Branch:
-    """A continued branch of solutions with its special points.
-
-    Attributes
-    ----------
-    kind : {"equilibrium", "periodic", "forced", "backbone"}
-    system : str
-        Registry name of the system.
-    param : str
-        Name of the continuation parameter.
-    params : ndarray of shape (n_points,)
-        Parameter value at each point.
-    solutions : ndarray of shape (n_points, n_unknowns)
-        Unknowns at each point (for orbits: mesh values of shape ``(M, n_states)``
-        flattened, then the period when it is unknown).
-    stable : ndarray of bool, shape (n_points,)
-    special_points : list of SpecialPoint
-    data : dict of ndarray
-        Per-point quantities, e.g. ``period``, ``amplitude`` (n_points, n_states),
-        ``floquet`` (n_points, n_states), ``eigenvalues``, ``phase``, ``omega``, ``forcing``.
-    p : ndarray
-        Parameter vector of the system (the continuation parameter is overwritten per point).
-    status : {"completed", "bounds", "max_steps", "failed"}
-        Why the branch ended; "failed" means the last step could not converge.
-    message : str
-    options : ContinuationOptions
-    meta : dict
-        How the branch was computed (mesh size, observed state, ...).
-    """
-
-    kind: str
-    system: str
-    param: str
-    params: np.ndarray
-    solutions: np.ndarray
-    stable: np.ndarray
-    special_points: list[SpecialPoint]
-    data: dict[str, np.ndarray]
-    p: np.ndarray
-    status: str
-    message: str
-    options: ContinuationOptions
-    meta: dict[str, Any] = field(default_factory=dict)
-
-    @property
-    def complete(self) -> bool:
-        """True unless the continuation stopped on a failure."""
-        return self.status != "failed"
-
-    def special(self, kind: str) -> list[SpecialPoint]:
-        """Special points of one kind."""
-        return [sp for sp in self.special_points if sp.kind == kind]
-
-    def __len__(self) -> int:
-        return int(self.params.shape[0])

@@ -1106,7 +1106,7 @@ class ForcedKernelModel:
         ys = res.ys
         status, message = res.status, res.message
         if status == "completed":
-            status, message = "bounds", f"amplitude left (0, {cap:.4g}]"
+            status, message = "range", f"amplitude left (0, {cap:.4g}]"
         branch = self._forced_branch(ys, res, "Omega", ys[:, 2], np.full(len(ys), f), gamma,
                                      status, message, opts)
         branch.meta["peak"] = self._refine_peak(ys, res.tangents, args, weights)
@@ -1134,7 +1134,7 @@ class ForcedKernelModel:
         for idx, yf, prec in getattr(res, "folds", []):
             specials.append(SpecialPoint(
                 kind="fold", param=float(yf[2] if param == "Omega" else yf[3]),
-                index=int(idx), interval=(float(params[idx]), float(params[idx + 1])),
+                index=int(idx), bracket=(float(params[idx]), float(params[idx + 1])),
                 solution=np.asarray(yf[:2]), precision=float(prec), status="converged",
                 data={"amplitude": float(yf[0]), "phase": float(_wrap_lag(yf[1])),
                       "omega": float(yf[2]), "forcing": float(np.asarray(forcing)[0])},
@@ -1249,7 +1249,7 @@ class ForcedKernelModel:
         i0 = int(np.argmax(inside))
         above = np.nonzero(fgrid[i0:] > f_hi)[0]
         i1 = i0 + int(above[0]) if above.size else len(rr) - 1
-        status = "bounds" if above.size else "max_steps"
+        status = "range" if above.size else "steps"
         message = ("reached the forcing bound" if above.size
                    else f"reached the amplitude cap {cap:.4g} before the forcing bound")
         r_lo, r_hi = rr[max(i0 - 1, 0)], rr[i1]
@@ -1303,7 +1303,7 @@ class ForcedKernelModel:
             g, psi = (float(v) for v in _sgamma(a, b, r, om))
             out.append(SpecialPoint(
                 kind="fold", param=g / k, index=int(i),
-                interval=(float(forcing[i]), float(forcing[i + 1])),
+                bracket=(float(forcing[i]), float(forcing[i + 1])),
                 solution=np.array([r, psi]), precision=float(abs(hi - lo)), status="converged",
                 data={"amplitude": r, "phase": float(_wrap_lag(psi)), "omega": om,
                       "forcing": g / k},
