@@ -54,8 +54,9 @@ from bifid.cbc import scurve_campaign
 from bifid.cbc._defaults import defaults_for
 from bifid.cbc._forced import ForcedCBCOptions, folds_of, frc_cbc
 from bifid.cbc._truth import correct_forced, forced_orbit_from_samples
-from bifid.continuation import ContinuationOptions, frc, max_abs, scurve
+from bifid.continuation import ContinuationOptions, frc, scurve
 from bifid.errors import ConvergenceError
+from bifid.signal import max_abs
 from bifid.systems import get_system
 
 CASES = {

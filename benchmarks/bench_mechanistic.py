@@ -77,8 +77,9 @@ def bench_linear() -> tuple[str, dict]:
 
 # ---------------------------------------------------------------------- normal form
 def bench_nf() -> tuple[str, dict]:
-    from bifid.continuation import correct, fourier_differentiation_matrix, max_abs, orbit_problem
+    from bifid.continuation import correct, fourier_differentiation_matrix, orbit_problem
     from bifid.identify.normal_form import hopf_normal_form, quadratic_cubic_structure
+    from bifid.signal import max_abs
     from bifid.systems import get_system
 
     sys_ = get_system("flutter")

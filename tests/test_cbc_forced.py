@@ -18,8 +18,8 @@ import pytest
 from bifid.cbc import VirtualRig
 from bifid.cbc._forced import ForcedCBCOptions, folds_of, frc_cbc, scurve_cbc
 from bifid.cbc._truth import correct_forced, forced_orbit_from_samples
-from bifid.continuation import max_abs
 from bifid.errors import ConvergenceWarning
+from bifid.signal import max_abs
 from bifid.systems import get_system
 
 FOLDS_CONTINUATION = (0.0215934, 0.0109005)
@@ -100,7 +100,7 @@ def test_band_noise_is_the_scatter_of_a_fundamental_of_blue_noise():
     the record's ends (``kd (e_n - e_0)/Δt``) and falls on ``a_1`` or ``b_1`` by the end
     phase: both a whole-sample period (6 s at 100 Hz) and a non-integer one (Ω = 1.05).
     """
-    from bifid.cbc._fourier import (
+    from bifid.signal import (
         band_noise,
         coefficient_noise,
         evaluate_series,

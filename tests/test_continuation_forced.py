@@ -5,7 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bifid.continuation import backbone, first_harmonic, frc, scurve
+from bifid.continuation import backbone, frc, scurve
+from bifid.signal import fourier_coefficients
 from bifid.systems import get_system
 
 ZETA, GAMMA = 0.01, 0.5
@@ -18,7 +19,8 @@ def duffing():
 
 def _first_harmonic_amplitude(br, M):
     V = br.solutions[:, : M * 2].reshape(-1, M, 2)[:, :, 0]
-    a1, b1 = first_harmonic(V.T)
+    _, a, b = fourier_coefficients(V.T)
+    a1, b1 = a[0], b[0]
     return np.hypot(a1, b1)
 
 

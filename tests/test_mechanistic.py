@@ -9,7 +9,6 @@ import warnings
 import numpy as np
 import pytest
 
-from bifid.continuation import max_abs
 from bifid.errors import BifidInputError, ConvergenceError, NotFittedError
 from bifid.identify.mechanistic import (
     LCOData,
@@ -21,6 +20,7 @@ from bifid.identify.mechanistic import (
     whole_diagram_update,
 )
 from bifid.identify.normal_form import hopf_normal_form
+from bifid.signal import max_abs
 from bifid.systems import get_system
 
 U_MEAS = np.array([15.5, 16.5, 17.5, 18.0, 15.2, 16.0, 17.0, 18.0])

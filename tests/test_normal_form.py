@@ -74,7 +74,8 @@ def test_flutter_l1_agrees_with_continuation(flutter_nf) -> None:
 
 def test_flutter_amplitude_error_shrinks_like_sqrt_mu(flutter_nf) -> None:
     """Normal-form pitch amplitude vs collocation: relative error ~ sqrt(U_H - U)."""
-    from bifid.continuation import correct, fourier_differentiation_matrix, max_abs, orbit_problem
+    from bifid.continuation import correct, fourier_differentiation_matrix, orbit_problem
+    from bifid.signal import max_abs
     from bifid.systems import get_system
 
     sys_ = get_system("flutter")

@@ -20,6 +20,7 @@ import json
 import math
 import os
 import platform
+import sys
 import tempfile
 import time
 import zipfile
@@ -45,6 +46,7 @@ __all__ = [
     "atomic_write_text",
     "jsonable",
     "load_model",
+    "run_info",
     "save_model",
     "versions",
 ]
@@ -351,3 +353,16 @@ def finite_or_none(x: float) -> float | None:
     """``x`` as a float, or ``None`` when it is not finite (JSON has no NaN)."""
     x = float(x)
     return x if math.isfinite(x) else None
+
+
+def run_info(command: str, **settings: Any) -> dict[str, Any]:
+    """Provenance recorded with every output: the command, bifid's version, the time, the
+    command line and working directory, and the ``settings`` that produced it."""
+    return {
+        "command": command,
+        "bifid_version": versions()["bifid"],
+        "time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+        "argv": sys.argv[1:],
+        "cwd": os.getcwd(),
+        **settings,
+    }

@@ -17,7 +17,6 @@ import pytest
 from bifid.cbc import FourierTarget, PDController, VirtualRig
 from bifid.cbc._defaults import defaults_for
 from bifid.cbc._forced import ForcedCBCOptions, folds_of, frc_cbc, scurve_cbc
-from bifid.cbc._fourier import fourier_project
 from bifid.cbc._ppcbc import ppcbc_continuation, ppcbc_sweep
 from bifid.cbc._stability import controlled_floquet, orbit_polar_target
 from bifid.cbc._truth import (
@@ -27,8 +26,9 @@ from bifid.cbc._truth import (
     forced_orbit_from_samples,
     orbit_from_samples,
 )
-from bifid.continuation import floquet_multipliers, max_abs
+from bifid.continuation import floquet_multipliers
 from bifid.errors import ConvergenceError
+from bifid.signal import fourier_project, max_abs
 from bifid.systems import get_system
 
 pytestmark = pytest.mark.slow

@@ -304,7 +304,7 @@ def _system(name: str, kind: str):
 
 def _settings(**kw: Any) -> dict[str, Any]:
     try:
-        from bifid.cli._common import run_info
+        from bifid.io import run_info
 
         return run_info("cbc-campaign", **kw)
     except Exception:  # the CLI is optional: settings without its run info

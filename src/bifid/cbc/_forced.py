@@ -41,17 +41,17 @@ from typing import Any
 import numpy as np
 
 from bifid.cbc._controllers import FourierTarget, PDController
-from bifid.cbc._fourier import (
-    HarmonicSecant,
+from bifid.cbc._rig import AbstractRig, Measurement
+from bifid.cbc._secant import HarmonicSecant
+from bifid.cbc._stability import switch_off_test
+from bifid.errors import BifidInputError, ConvergenceError, ConvergenceWarning
+from bifid.signal import (
     band_noise,
     coefficient_noise,
     evaluate_series,
     fourier_project,
     whole_periods,
 )
-from bifid.cbc._rig import AbstractRig, Measurement
-from bifid.cbc._stability import switch_off_test
-from bifid.errors import BifidInputError, ConvergenceError, ConvergenceWarning
 
 __all__ = [
     "ForcedCBCOptions",

@@ -42,8 +42,11 @@ from bifid.cbc._controllers import (
     PolarTarget,
     target_to_json,
 )
-from bifid.cbc._fourier import (
-    HarmonicSecant,
+from bifid.cbc._rig import AbstractRig, Measurement
+from bifid.cbc._secant import HarmonicSecant
+from bifid.cbc._stability import StabilityResult, switch_off_test
+from bifid.errors import BifidInputError, ConvergenceError, ConvergenceWarning
+from bifid.signal import (
     coefficient_noise,
     estimate_frequency,
     evaluate_series,
@@ -54,9 +57,6 @@ from bifid.cbc._fourier import (
     uniform_basis,
     whole_periods,
 )
-from bifid.cbc._rig import AbstractRig, Measurement
-from bifid.cbc._stability import StabilityResult, switch_off_test
-from bifid.errors import BifidInputError, ConvergenceError, ConvergenceWarning
 
 __all__ = [
     "LCOPoint",
@@ -320,7 +320,7 @@ class _Family:
         autonomous oscillation.
         """
         x1, x2 = m.signal(self.o.x1), m.signal(self.o.x2)
-        om = estimate_frequency(x1, m.sample_rate)
+        om = estimate_frequency(x1, m.sample_rate, method="crossings")
         if not (om > 0 and math.isfinite(om)) or (
                 omega_hint > 0 and not 1 / 3 < om / omega_hint < 3):
             # no oscillation, or crossings of measurement noise: a frequency this far from

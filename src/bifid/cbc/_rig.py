@@ -56,6 +56,13 @@ class Measurement:
         Number of samples at which the actuator saturated.
     extra : dict
         Rig-specific extras (a virtual rig adds the true ``states``).
+    status : {"ok", "tripped"}
+        ``tripped`` when the rig's safety gate fired during the run (a state or the
+        actuator left the safety envelope, or the rig could not keep its state finite):
+        the controller was disarmed and the rig brought to rest; the samples up to the
+        trip are returned.
+    reason : str
+        Why it tripped (which limit, at what time), empty when ``ok``.
     """
 
     time: np.ndarray
@@ -69,6 +76,8 @@ class Measurement:
     sample_rate: float
     saturated: int = 0
     extra: dict[str, Any] = field(default_factory=dict)
+    status: str = "ok"
+    reason: str = ""
 
     def __len__(self) -> int:
         return int(self.time.shape[0])
@@ -95,6 +104,7 @@ class Measurement:
             derivatives=self.derivatives[sl], control=self.control[sl],
             target=self.target[sl], force=self.force[sl], phase=self.phase[sl],
             sample_rate=self.sample_rate, saturated=self.saturated, extra=extra,
+            status=self.status, reason=self.reason,
         )
 
 
@@ -147,6 +157,11 @@ class AbstractRig(abc.ABC):
     @abc.abstractmethod
     def run(self, duration: float) -> Measurement:
         """Let ``duration`` seconds pass and return what was sampled meanwhile."""
+
+    def seed(self, seed: int) -> None:  # noqa: B027 - optional: rigs without noise ignore it
+        """Restart the rig's measurement-noise stream from ``seed`` (a campaign seeds each
+        point from its index, so that a resumed campaign measures exactly what an
+        uninterrupted one would)."""
 
     def describe(self) -> Mapping[str, Any]:
         """Settings worth recording with a dataset (JSON-able)."""

@@ -27,9 +27,9 @@ import numpy as np
 
 from bifid.cbc._controllers import AbstractTarget, PDController, PolarTarget
 from bifid.cbc._fastfield import jax_vmap_field
-from bifid.cbc._fourier import polar_project
 from bifid.cbc._rig import AbstractRig, Measurement
 from bifid.errors import BifidInputError
+from bifid.signal import polar_project
 from bifid.systems import System
 
 __all__ = [

@@ -14,8 +14,8 @@ from collections.abc import Sequence
 import jax.numpy as jnp
 import numpy as np
 
-from bifid.cbc._fourier import fourier_project
 from bifid.errors import BifidInputError, ConvergenceError
+from bifid.signal import fourier_project, max_abs
 from bifid.systems import System
 
 __all__ = ["centred_amplitudes", "correct_orbit", "orbit_from_samples"]
@@ -87,7 +87,6 @@ def correct_orbit(system: System, param: str, value: float, orbit: np.ndarray, p
 
 def centred_amplitudes(orbit: np.ndarray) -> np.ndarray:
     """``max_t |x_s(t) - x̄_s|`` per state of a periodic orbit on an equispaced mesh."""
-    from bifid.continuation import max_abs
 
     V = np.asarray(orbit, dtype=float)
     return np.atleast_1d(max_abs(V - V.mean(axis=0)))

@@ -23,10 +23,10 @@ from bifid.cli._common import (
     emit_json,
     finite_range,
     parse_sets,
-    run_info,
     user_errors,
 )
 from bifid.errors import BifidInputError
+from bifid.io import run_info
 
 Opt = typer.Option
 
@@ -376,7 +376,8 @@ def _ppcbc(*, system, system_name, rig, dflt, out, resume, overrides, kp, kd, se
 def _lco_truth(system, overrides, param, vals, opts, payload) -> dict[str, Any] | None:
     """Continuation ground truth: equilibria, Hopf points and their orbit branches."""
     try:
-        from bifid.continuation import ContinuationOptions, continue_from_hopf, max_abs
+        from bifid.continuation import ContinuationOptions, continue_from_hopf
+        from bifid.signal import max_abs
 
         lo, hi = min(vals), max(vals)
         span = max(hi - lo, 1.0)

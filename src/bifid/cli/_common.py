@@ -5,9 +5,7 @@ from __future__ import annotations
 import contextlib
 import json
 import math
-import os
 import sys
-import time
 from collections.abc import Iterator
 from typing import Any
 
@@ -112,20 +110,6 @@ def emit_json(payload: dict[str, Any]) -> None:
     """Print one JSON object on stdout."""
     sys.stdout.write(json.dumps(to_jsonable(payload)) + "\n")
     sys.stdout.flush()
-
-
-def run_info(command: str, **settings: Any) -> dict[str, Any]:
-    """Settings block recorded in every CLI output."""
-    from bifid import __version__
-
-    return {
-        "command": command,
-        "bifid_version": __version__,
-        "time": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-        "argv": sys.argv[1:],
-        "cwd": os.getcwd(),
-        **settings,
-    }
 
 
 # ``bifid predict MODEL`` reads ``model.json``'s "type" and calls the predictor

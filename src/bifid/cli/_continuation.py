@@ -17,10 +17,10 @@ from bifid.cli._common import (
     emit_json,
     finite_range,
     parse_sets,
-    run_info,
     user_errors,
 )
 from bifid.errors import BifidInputError
+from bifid.io import run_info
 
 JsonOpt = Annotated[bool, typer.Option("--json", help="Print one JSON object on stdout.")]
 SetOpt = Annotated[

@@ -9,8 +9,9 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
-from bifid.cli._common import app, emit_json, run_info, user_errors
+from bifid.cli._common import app, emit_json, user_errors
 from bifid.errors import BifidInputError
+from bifid.io import run_info
 
 if TYPE_CHECKING:
     import xarray as xr

@@ -12,8 +12,9 @@ from typing import Annotated
 
 import typer
 
-from bifid.cli._common import app, emit_json, run_info, user_errors
+from bifid.cli._common import app, emit_json, user_errors
 from bifid.errors import BifidInputError
+from bifid.io import run_info
 
 
 @app.command("demo")

@@ -25,10 +25,10 @@ from bifid.cli._common import (
     emit_json,
     fit_app,
     register_predictor,
-    run_info,
     user_errors,
 )
 from bifid.errors import BifidInputError
+from bifid.io import run_info
 
 _BAND_KEYS = ("n_samples", "band_level", "seed")
 

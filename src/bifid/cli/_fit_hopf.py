@@ -21,8 +21,9 @@ from typing import Annotated, Any
 
 import typer
 
-from bifid.cli._common import emit_json, fit_app, register_predictor, run_info, user_errors
+from bifid.cli._common import emit_json, fit_app, register_predictor, user_errors
 from bifid.errors import BifidInputError
+from bifid.io import run_info
 
 
 def enable_compilation_cache() -> None:

@@ -23,10 +23,10 @@ from bifid.cli._common import (
     fit_app,
     parse_sets,
     register_predictor,
-    run_info,
     user_errors,
 )
 from bifid.errors import BifidInputError
+from bifid.io import run_info
 
 # scalars stored in the flutter rig's free-decay files -> flutter parameter names
 RIG_GUESSES = {

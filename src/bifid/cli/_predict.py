@@ -20,10 +20,10 @@ from bifid.cli._common import (
     emit_json,
     finite_range,
     parse_sets,
-    run_info,
     user_errors,
 )
 from bifid.errors import BifidInputError
+from bifid.io import run_info
 
 
 def _model_type(model: Path) -> str:

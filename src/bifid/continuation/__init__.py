@@ -24,15 +24,7 @@ from bifid.continuation._equilibria import (
 )
 from bifid.continuation._floquet import floquet_multipliers, monodromy
 from bifid.continuation._forced import backbone, forced_problem, frc, scurve
-from bifid.continuation._fourier import (
-    evaluate_fourier,
-    first_harmonic,
-    fourier_coefficients,
-    fourier_differentiation_matrix,
-    fourier_grid,
-    max_abs,
-    spectral_tail,
-)
+from bifid.continuation._fourier import fourier_differentiation_matrix, fourier_grid
 from bifid.continuation._options import ContinuationOptions
 from bifid.continuation._palc import (
     AbstractCorrector,
@@ -68,24 +60,19 @@ __all__ = [
     "correct",
     "equilibria",
     "equilibrium_problem",
-    "evaluate_fourier",
-    "first_harmonic",
     "first_lyapunov_coefficient",
     "floquet_multipliers",
     "forced_problem",
-    "fourier_coefficients",
     "fourier_differentiation_matrix",
     "fourier_grid",
     "frc",
     "hopf_orbits",
     "locate_hopf",
-    "max_abs",
     "monodromy",
     "orbit_problem",
     "palc",
     "periodic_orbits",
     "resample_orbit",
     "scurve",
-    "spectral_tail",
     "tangent_at",
 ]

@@ -139,6 +139,8 @@ class Branch:
     intervals : dict of (ndarray, ndarray)
         Lower and upper bands of per-point quantities at the diagram's ``level``, keyed
         like ``data`` (e.g. ``amplitude``).
+    candidates : list of Candidate
+        Possible special points on this branch that could not be located and verified.
     """
 
     kind: str
@@ -157,6 +159,7 @@ class Branch:
     signals: tuple[str, ...] = ()
     verification: dict[str, np.ndarray] = field(default_factory=dict)
     intervals: dict[str, tuple[np.ndarray, np.ndarray]] = field(default_factory=dict)
+    candidates: list[Candidate] = field(default_factory=list)
 
     @property
     def complete(self) -> bool:

@@ -31,12 +31,11 @@ from bifid.continuation._fourier import (
     check_resolution,
     fourier_differentiation_matrix,
     fourier_grid,
-    max_abs,
-    spectral_tail,
 )
 from bifid.continuation._options import ContinuationOptions
 from bifid.continuation._palc import ZeroProblem, correct, palc
 from bifid.errors import BifidInputError, ConvergenceError
+from bifid.signal import max_abs, spectral_tail
 from bifid.systems import System
 
 Array = jnp.ndarray

@@ -217,7 +217,10 @@ class Diagram:
                         "reason": b.status, "message": b.message}
                        for i, b in enumerate(self.branches)]
         out["candidates"] = [{"kind": c.kind, "bracket": list(c.bracket), "reason": c.reason,
-                              "branch": c.branch} for c in self.candidates]
+                              "branch": i} for i, b in enumerate(self.branches)
+                             for c in b.candidates]
+        out["candidates"] += [{"kind": c.kind, "bracket": list(c.bracket), "reason": c.reason,
+                               "branch": c.branch} for c in self.candidates]
         if self.failures:
             out["failures"] = list(self.failures)
         if self.level is not None:
@@ -435,7 +438,8 @@ def _branch_to_dataset(b: Branch):
     attrs = {"kind": b.kind, "system": b.system, "param": b.param, "status": b.status,
              "message": b.message, "signals": json.dumps(list(b.signals)),
              "meta": json.dumps(_clean(b.meta)), "specials": json.dumps(specials),
-             "options": json.dumps(_clean(asdict(b.options)) if b.options else None)}
+             "options": json.dumps(_clean(asdict(b.options)) if b.options else None),
+             "candidates": json.dumps(_clean([asdict(c) for c in b.candidates]))}
     v["p"] = (("parameter",), np.asarray(b.p, dtype=float).ravel())
     return xr.Dataset(v, attrs=attrs)
 
@@ -463,6 +467,8 @@ def _branch_from_dataset(ds: Any) -> Branch:
         options=ContinuationOptions(**opts) if opts else None, meta=json.loads(a["meta"]),
         signals=tuple(json.loads(a["signals"])), verification=_take(ds, "verification_"),
         intervals={k: (lo[k], hi[k]) for k in lo},
+        candidates=[Candidate(c["kind"], tuple(c["bracket"]), c["reason"], c["branch"])
+                    for c in json.loads(a.get("candidates", "[]"))],
     )
 
 

@@ -10,7 +10,7 @@ from typing import Any
 import numpy as np
 
 from bifid.continuation._branch import Branch
-from bifid.continuation._fourier import evaluate_fourier, fourier_coefficients
+from bifid.signal import evaluate_fourier, fourier_coefficients
 from bifid.systems import System
 
 

@@ -20,7 +20,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bifid.continuation._fourier import fourier_coefficients
+from bifid.signal import fourier_coefficients
 
 Array = jnp.ndarray
 

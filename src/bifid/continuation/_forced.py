@@ -26,15 +26,13 @@ from bifid.continuation._branch import Branch, SpecialPoint
 from bifid.continuation._floquet import floquet_multipliers
 from bifid.continuation._fourier import (
     check_resolution,
-    first_harmonic,
     fourier_differentiation_matrix,
     fourier_grid,
-    max_abs,
-    spectral_tail,
 )
 from bifid.continuation._options import ContinuationOptions
 from bifid.continuation._palc import ZeroProblem, correct, palc
 from bifid.errors import BifidInputError, ConvergenceError
+from bifid.signal import fourier_coefficients, max_abs, spectral_tail
 from bifid.systems import System
 
 Array = jnp.ndarray
@@ -104,7 +102,8 @@ def _forced_branch(system, kind, param, ys, result, p, idx_free, M, options, obs
     periods = 2.0 * np.pi / omega
     mults, stable, fmax = floquet_multipliers(system.rhs, orbits, periods, ps, autonomous=False)
     amps = np.array([max_abs(o) for o in orbits])
-    a1, b1 = first_harmonic(np.moveaxis(orbits[:, :, obs], 1, 0))
+    _, a_k, b_k = fourier_coefficients(np.moveaxis(orbits[:, :, obs], 1, 0))
+    a1, b1 = a_k[0], b_k[0]
     phase = np.arctan2(b1, a1)
     if kind != "backbone":
         # continuous lag in (-pi/2, 3pi/2]

@@ -336,6 +336,11 @@ class Continuation:
     predictor : {"tangent", "secant"}
         Euler predictor along the tangent, or along the secant of the last two points
         (the tangent is then only used at the start and for fold location).
+    monitor : callable ``(y, y_new, args) -> float``, optional
+        Step control beyond the corrector's: called with each corrected step before it is
+        accepted; a return value ``f < 1`` rejects the step and retries with ``ds * f``
+        (e.g. when the amplitude or the harmonic content changed too much to trust the
+        curve between the two points), ``f >= 1`` accepts it.
     """
 
     def __init__(
@@ -348,6 +353,7 @@ class Continuation:
         update_args: Callable[[np.ndarray, Any], Any] | None = None,
         stop: Callable[[np.ndarray], bool] | None = None,
         predictor: str = "tangent",
+        monitor: Callable[[np.ndarray, np.ndarray, Any], float] | None = None,
     ) -> None:
         if predictor not in ("tangent", "secant"):
             raise BifidInputError(f"predictor must be 'tangent' or 'secant', got {predictor!r}.")
@@ -358,6 +364,7 @@ class Continuation:
         self.update_args = update_args
         self.stop = stop
         self.predictor = predictor
+        self.monitor = monitor
 
     def _w(self, n: int) -> np.ndarray:
         return np.ones(n) if self.weights is None else self.weights
@@ -417,6 +424,11 @@ class Continuation:
             t_new, sign_new = self.corrector.tangent(r.y, direction, w, args)
             # reject steps that turn too sharply: the corrector may have jumped branch
             ok = float(t_new @ (w * direction)) > 0.8 or ds <= o.ds_min * 1.0001
+        if ok and self.monitor is not None and ds > o.ds_min * 1.0001:
+            factor = float(self.monitor(y, r.y, args))
+            if factor < 1.0:
+                return Step(replace(state, ds=max(ds * max(factor, 0.1), o.ds_min),
+                                    corrector=self.corrector.state()))
         if not ok:
             if ds <= o.ds_min * 1.0001:
                 return Step(replace(

@@ -46,8 +46,7 @@ from bifid.data._netcdf import (
     load_dataset,
     save_dataset,
 )
-from bifid.data._records import ForcedRecord, LCORecord, first_harmonic, phase_lag
-from bifid.data._signal import estimate_frequency, fill_gaps, fourier_fit, periodic_max_abs
+from bifid.data._records import ForcedRecord, LCORecord
 from bifid.data._validate import KINDS, validate_dataset
 
 __all__ = [
@@ -63,14 +62,10 @@ __all__ = [
     "combine_datasets",
     "detect_format",
     "em_dataset",
-    "estimate_frequency",
     "expand_paths",
-    "fill_gaps",
-    "first_harmonic",
     "flutter_cbc_dataset",
     "forced_dataset",
     "forced_records",
-    "fourier_fit",
     "import_files",
     "lco_dataset",
     "lco_records",
@@ -82,8 +77,6 @@ __all__ = [
     "load_ulco_amplitudes",
     "open_loop_dataset",
     "open_loop_summary",
-    "periodic_max_abs",
-    "phase_lag",
     "read_csv_dataset",
     "read_em_curve",
     "read_flutter_cbc",

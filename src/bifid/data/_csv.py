@@ -29,10 +29,10 @@ import xarray as xr
 
 from bifid.data._netcdf import forced_dataset, forced_records, lco_dataset, lco_records
 from bifid.data._records import ForcedRecord, LCORecord
-from bifid.data._signal import estimate_frequency
 from bifid.data._validate import parse_json_attr, validate_dataset
 from bifid.errors import BifidInputError
 from bifid.io import atomic_write_text
+from bifid.signal import estimate_frequency
 
 __all__ = ["ThesisCurve", "load_thesis_curves", "read_csv_dataset", "write_csv"]
 
@@ -94,7 +94,7 @@ def read_csv_dataset(path: str | os.PathLike[str]) -> xr.Dataset:
 
     The kind follows from the columns: ``param`` → LCO, ``omega`` + ``forcing`` → forced.
     For LCO records without a ``frequency`` column the frequency is estimated from the
-    spectral peak of the first signal (:func:`~bifid.data._signal.estimate_frequency`),
+    spectral peak of the first signal (:func:`~bifid.signal.estimate_frequency`),
     flagged by the extra ``frequency_estimated = 1``.
 
     Raises

@@ -26,8 +26,8 @@ import xarray as xr
 from bifid.data._matcheck import check_mat_v5
 from bifid.data._netcdf import forced_dataset, lco_dataset
 from bifid.data._records import ForcedRecord, LCORecord
-from bifid.data._signal import estimate_frequency, fill_gaps, periodic_max_abs
 from bifid.errors import BifidInputError
+from bifid.signal import estimate_frequency, fill_gaps, periodic_amplitude
 
 __all__ = [
     "FreeDecay",
@@ -204,7 +204,7 @@ def read_flutter_cbc(path: str | os.PathLike[str]) -> LCORecord:
     - ``param`` = stored ``Wind_sped`` [m/s] (the file names are not reliable);
     - signals ``h`` [m] = (row 1 − mean) × 0.18 m/V and ``alpha`` [rad] = row 4 − mean,
       where pitch samples equal to 6.2832 (sensor wrap, ``cbc_model2``) are first replaced
-      by :func:`~bifid.data._signal.fill_gaps` (linear interpolation for runs ≤ 25 samples
+      by :func:`~bifid.signal.fill_gaps` (linear interpolation for runs ≤ 25 samples
       = 5 ms, else the 7-harmonic Fourier series of the good samples at ``freq_actual``);
     - ``target`` = (row 2 − heave mean) × 0.18 [m]; ``control`` = shaker force row 3 [V];
     - ``stable`` from the file name (``CBC_stable_*`` → True; ``CBC_unstable_*``,
@@ -474,7 +474,7 @@ def open_loop_dataset(paths: Sequence[str | os.PathLike[str]]) -> xr.Dataset:
 
     Open-loop responses that persist are stable attractors, so sweep runs
     (``TowardsHB``/``BackFromHB``) are labelled stable; hammer runs (transients) unknown.
-    ``frequency`` is the spectral peak (:func:`~bifid.data._signal.estimate_frequency`).
+    ``frequency`` is the spectral peak (:func:`~bifid.signal.estimate_frequency`).
     """
     paths = [Path(p) for p in paths]
     records = []
@@ -593,7 +593,7 @@ def read_em_curve(path: str | os.PathLike[str], curve: int = 0) -> tuple[list[Fo
       ``target`` = ``x_target`` minus x's mean;
       ``control`` = ``out`` (controller output driving the shaker);
     - ``amplitude`` = ``max_t |x(t)|`` of the 7-harmonic least-squares Fourier series of
-      the time series (noise removed; :func:`~bifid.data._signal.periodic_max_abs`);
+      the time series (noise removed; :func:`~bifid.signal.periodic_amplitude`);
     - ``phase`` left to the dataset builder: lag of x's first harmonic behind the force's,
       from the time series; the same from the averaged coefficients is kept as extra
       ``phase_coeffs``;
@@ -640,7 +640,7 @@ def read_em_curve(path: str | os.PathLike[str], curve: int = 0) -> tuple[list[Fo
         control = (_vector(p.out, f"{where}.out", path, n) if hasattr(p, "out") else None)
         x_target = (_vector(p.x_target, f"{where}.x_target", path, n)
                     if hasattr(p, "x_target") else None)
-        amp, x_mean = periodic_max_abs(x, omega, fs, n_harmonics=n_modes)
+        amp, x_mean = periodic_amplitude(x, omega, fs, n_harmonics=n_modes, trim=False)
         xc = _em_coeffs(p, "x_coeffs_ave", path, i)
         bc = _em_coeffs(p, "base_coeffs_ave", path, i)
         extra: dict[str, Any] = {

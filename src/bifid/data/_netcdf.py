@@ -17,10 +17,11 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from bifid.data._records import ForcedRecord, LCORecord, phase_lag
+from bifid.data._records import ForcedRecord, LCORecord
 from bifid.data._validate import EXTRA_PREFIX, parse_json_attr, validate_dataset
 from bifid.errors import BifidInputError
 from bifid.io import atomic_path, jsonable
+from bifid.signal import phase_lag
 
 __all__ = [
     "append_record",
@@ -254,7 +255,7 @@ def forced_dataset(
 
     ``amplitude`` is the record's own value when given, else ``max_t |x_obs(t)|`` of the
     observed signal; ``phase`` is the record's value when given, else the lag of the
-    observed first harmonic behind the force's (:func:`bifid.data.phase_lag`) when a
+    observed first harmonic behind the force's (:func:`bifid.signal.phase_lag`) when a
     ``force`` series is present, else NaN. ``observed`` defaults to the first signal.
     """
     recs = _check_records(records, ForcedRecord)

@@ -16,7 +16,7 @@ import numpy as np
 
 from bifid.errors import BifidInputError
 
-__all__ = ["ForcedRecord", "LCORecord", "first_harmonic", "phase_lag"]
+__all__ = ["ForcedRecord", "LCORecord"]
 
 ExtraValue = float | int | str
 
@@ -121,38 +121,6 @@ def _extra(value: Mapping[str, Any] | None) -> dict[str, ExtraValue]:
     return out
 
 
-def first_harmonic(
-    x: np.ndarray, omega: float, sample_rate: float, n_harmonics: int = 7
-) -> complex:
-    """Complex first-harmonic coefficient ``c`` of ``x(t) ≈ x0 + Re(c e^{iωt}) + ...``.
-
-    Least-squares fit of ``x0 + Σ_{k≤K} (a_k cos kωt + b_k sin kωt)`` on
-    ``t_j = j / sample_rate`` with ``K = n_harmonics`` (fewer for short records or when
-    ``Kω`` nears the Nyquist frequency), so that higher harmonics do not leak into the
-    first even when the record is not a whole number of periods; ``c = a_1 − i b_1``,
-    ``|c|`` is the amplitude and ``arg c`` the phase of the first harmonic.
-    """
-    from bifid.data._signal import fourier_fit
-
-    coef = fourier_fit(np.asarray(x, dtype=float), omega, sample_rate, n_harmonics)
-    return complex(coef[1], -coef[2])
-
-
-def phase_lag(x: np.ndarray, force: np.ndarray, omega: float, sample_rate: float) -> float:
-    """Lag of the first harmonic of ``x`` behind that of ``force`` [rad].
-
-    ``lag = arg F₁ − arg X₁`` wrapped to ``[−π/2, 3π/2)``, so that the usual range of a
-    forced oscillator, 0 (below resonance) → π/2 (at resonance) → π (above), never wraps.
-    NaN if either harmonic vanishes.
-    """
-    cx = first_harmonic(x, omega, sample_rate)
-    cf = first_harmonic(force, omega, sample_rate)
-    if abs(cx) == 0.0 or abs(cf) == 0.0:
-        return float("nan")
-    lag = math.atan2(cf.imag, cf.real) - math.atan2(cx.imag, cx.real)
-    return float((lag + math.pi / 2) % (2 * math.pi) - math.pi / 2)
-
-
 @dataclasses.dataclass
 class LCORecord:
     """One limit cycle of an autonomous system, sampled at a fixed parameter value.
@@ -240,7 +208,7 @@ class ForcedRecord:
         dataset builder.
     phase
         Lag of the observed first harmonic behind the force [rad]; ``None`` → computed from
-        ``force`` when present (:func:`phase_lag`), NaN otherwise.
+        ``force`` when present (:func:`bifid.signal.phase_lag`), NaN otherwise.
     curve
         Integer id of the S-curve / FRC / backbone this point belongs to.
     extra

@@ -197,8 +197,8 @@ def _campaign(path: Path, cfg: FlutterDemoSettings, noise: dict[str, float], bar
     from bifid.cbc import VirtualRig, ppcbc_scan
     from bifid.cbc._defaults import defaults_for
     from bifid.cbc._records import lco_record
-    from bifid.cli._common import run_info
     from bifid.data import append_record
+    from bifid.io import run_info
     from bifid.systems import get_system
 
     system = get_system("flutter")

@@ -42,7 +42,8 @@ def flutter_truth(directory: Path, param_range: tuple[float, float],
     (to judge the measurements themselves).
     """
     from bifid.cbc._truth import correct_orbit
-    from bifid.continuation import continue_from_hopf, max_abs
+    from bifid.continuation import continue_from_hopf
+    from bifid.signal import max_abs
     from bifid.systems import get_system
 
     s = get_system("flutter")

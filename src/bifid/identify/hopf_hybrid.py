@@ -1450,17 +1450,13 @@ def _one_period(prep: Prepared, i: int, n: int) -> np.ndarray:
 def _measured_amplitude(sig: np.ndarray, omega: float, fs: float) -> np.ndarray:
     """Noise-robust ``max_t |z_k|`` of a record: maximum of its 20-harmonic Fourier series at
     the record's frequency (offset kept: amplitudes are about the signals' zero)."""
-    from bifid.data import fourier_fit
+    from bifid.signal import evaluate_series, fourier_fit
 
     out = []
     theta = np.linspace(0, 2 * np.pi, 2048, endpoint=False)
     nh = int(max(1, min(20, (len(sig) - 1) // 8)))
     for k in range(sig.shape[1]):
-        coef = fourier_fit(sig[:, k], omega, fs, nh)  # [a0, a1, b1, a2, b2, ...]
-        kk = np.arange(1, (len(coef) - 1) // 2 + 1)
-        val = coef[0] + np.cos(np.outer(theta, kk)) @ coef[1::2] + np.sin(
-            np.outer(theta, kk)
-        ) @ coef[2::2]
+        val = evaluate_series(fourier_fit(sig[:, k], omega, fs, nh), theta)
         out.append(np.max(np.abs(val)))
     return np.asarray(out)
 

@@ -172,10 +172,11 @@ class LCOData:
             "dataset": the dataset's ``amplitude`` (raw ``max |x|`` of the centred signal);
             "fourier": ``max |x|`` of a least-squares Fourier series with ``n_harmonics``
             harmonics at a frequency estimated from the record itself
-            (:func:`bifid.data.periodic_max_abs`) — robust to measurement noise, which
+            (:func:`bifid.signal.periodic_amplitude`) — robust to measurement noise, which
             inflates a raw maximum (by up to ~10 % on the unstable rig LCOs).
         """
-        from bifid.data import estimate_frequency, lco_records, periodic_max_abs
+        from bifid.data import lco_records
+        from bifid.signal import estimate_frequency, periodic_amplitude
 
         if ds.attrs.get("bifid_kind") != "lco":
             raise BifidInputError(
@@ -198,8 +199,8 @@ class LCOData:
             else:
                 ref = np.asarray(r.signals)[:, cols[0]]
                 w = estimate_frequency(ref, r.sample_rate)
-                amps.append([periodic_max_abs(np.asarray(r.signals)[:, c], w, r.sample_rate,
-                                              n_harmonics)[0] for c in cols])
+                amps.append([periodic_amplitude(np.asarray(r.signals)[:, c], w, r.sample_rate,
+                                                n_harmonics, trim=False)[0] for c in cols])
                 freqs.append(w)
         stable = [(-1 if r.stable is None else int(bool(r.stable))) for r in recs]
         pname = str(ds["param"].attrs.get("name", ds.attrs.get("param_name", "U")))

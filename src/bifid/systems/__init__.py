@@ -5,10 +5,11 @@
 ('h', 'hd', 'alpha', 'alphad', 'w', 'wd')
 """
 
-from bifid.systems._base import Parameter, System, get_system, list_systems, register
+from bifid.systems._base import Envelope, Parameter, System, get_system, list_systems, register
 from bifid.systems._library import duffing, flutter, flutter_matrices, hopf, shaw_pierre, vanderpol
 
 __all__ = [
+    "Envelope",
     "Parameter",
     "System",
     "duffing",

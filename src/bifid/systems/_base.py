@@ -20,7 +20,7 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
-from typing import Literal
+from typing import Any, Literal
 
 import jax.numpy as jnp
 import numpy as np
@@ -61,6 +61,40 @@ class Parameter:
 
 
 @dataclass(frozen=True)
+class Envelope:
+    """The safety limits of a rig of a system, as a real rig's safety gate holds them.
+
+    Crossing any limit disarms the controller and brings the rig to rest; the point being
+    measured is then a failure with the reason recorded.
+
+    Parameters
+    ----------
+    states : dict of (float, float)
+        ``{state: (min, max)}`` limits on states (``-inf`` / ``inf`` for none).
+    control_max : float, optional
+        Largest magnitude of the controller output (actuator limit).
+    """
+
+    states: Mapping[str, tuple[float, float]] = field(default_factory=dict)
+    control_max: float | None = None
+
+    def __post_init__(self) -> None:
+        for name, (lo, hi) in self.states.items():
+            if not (lo < hi) or math.isnan(lo) or math.isnan(hi):
+                raise BifidInputError(
+                    f"envelope of {name!r} must satisfy min < max, got ({lo!r}, {hi!r})."
+                )
+        if self.control_max is not None and not self.control_max > 0:
+            raise BifidInputError(
+                f"envelope control_max must be positive, got {self.control_max!r}."
+            )
+
+    def to_json(self) -> dict:
+        return {"states": {k: list(v) for k, v in self.states.items()},
+                "control_max": self.control_max}
+
+
+@dataclass(frozen=True)
 class System:
     """A vector field with its metadata.
 
@@ -89,6 +123,13 @@ class System:
         The usual bifurcation parameter.
     description : str
         The equations (shown by ``bifid systems``).
+    envelope : Envelope, optional
+        Safety limits of a rig of this system (CBC disarms beyond them).
+    cbc : dict
+        CBC settings that override those derived from the linearisation (gains, sample
+        rate, measured signals, amplitude grid, ...).
+    source : str
+        Where the system came from: ``built-in``, a file path, or a package's entry point.
     """
 
     name: str
@@ -101,6 +142,9 @@ class System:
     observed: str = ""
     default_param: str = ""
     description: str = ""
+    envelope: Envelope | None = field(default=None, compare=False)
+    cbc: Mapping[str, Any] = field(default_factory=dict, compare=False)
+    source: str = field(default="built-in", compare=False)
     _index: Mapping[str, int] = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -212,6 +256,8 @@ class System:
             ],
             "observed": self.observed,
             "default_param": self.default_param,
+            "source": self.source,
+            "envelope": None if self.envelope is None else self.envelope.to_json(),
         }
 
 
