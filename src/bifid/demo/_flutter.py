@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from bifid.demo._cache import StageCache, settings_key
+from bifid.demo._checks import FLUTTER_CHECKS as CHECKS
 from bifid.demo._progress import Stages
 from bifid.demo._report_common import check
 from bifid.errors import ConvergenceError, ConvergenceWarning
@@ -68,10 +69,6 @@ class FlutterDemoSettings:
 
 
 # thresholds of the error table: issue 5's numbers, doubled because the data are noisy
-CHECKS = {"hopf_U": 0.1, "fold_U": 0.2, "amplitude_rel": 0.06, "frequency_rel": 0.02,
-          "series_rel": 0.10,
-          # issue 4's numbers (stated there for noise-free data)
-          "mechanistic_params_rel": 0.02, "mechanistic_U": 0.05}
 
 
 def run_flutter_demo(out: Path, settings: FlutterDemoSettings | None = None, *,

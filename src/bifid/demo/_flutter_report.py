@@ -12,6 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from bifid.demo._checks import FLUTTER_CHECKS as CHECKS
 from bifid.demo._report_common import check, finish_report
 from bifid.errors import BifidError
 from bifid.report.plots import STABLE, UNSTABLE, save_figure
@@ -40,7 +41,6 @@ def _aligned_error(model_z: np.ndarray, truth_z: np.ndarray) -> float:
 
 def compare(model, truth: dict[str, Any], tarr: dict[str, np.ndarray]) -> dict[str, Any]:
     """Model predictions against the truth: special points, amplitudes, frequencies, series."""
-    from bifid.demo._flutter import CHECKS
 
     hopf = model.hopf_point()
     fold = model.cycle_fold()

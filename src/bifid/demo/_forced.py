@@ -28,7 +28,6 @@ from bifid.errors import ConvergenceError, ConvergenceWarning
 __all__ = ["ForcedDemoSettings", "run_forced_demo"]
 
 # limits of the error table (issue 6's numbers, doubled for noisy CBC data)
-CHECKS = {"peak_rel": 0.04, "fold_omega_rel": 0.002, "backbone_rel": 0.02}
 
 
 @dataclass(frozen=True)

@@ -12,6 +12,7 @@ matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
+from bifid.demo._checks import FORCED_CHECKS as CHECKS
 from bifid.demo._report_common import check, finish_report
 from bifid.errors import BifidError
 from bifid.report.plots import save_figure
@@ -23,7 +24,6 @@ COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown")
 
 def compare(model, truth: dict[str, Any], tarr: dict[str, np.ndarray], cfg) -> dict[str, Any]:
     """Predicted FRCs (with bands) and backbone against continuation of the true system."""
-    from bifid.demo._forced import CHECKS
 
     rows, frcs = [], []
     for tf in truth["frcs"]:
