@@ -1,9 +1,13 @@
-"""Shared test configuration: strict float64 JAX, a persistent compilation cache, data paths."""
+"""Shared test configuration: strict float64 JAX, a persistent compilation cache, data paths,
+and ``bifid_cli``: the ``bifid`` command run in-process as a user runs it."""
 
 from __future__ import annotations
 
+import json
 import os
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import jax
 import pytest
@@ -12,7 +16,8 @@ jax.config.update("jax_enable_x64", True)
 # Compiled XLA programs are cached across test runs (CI runs the suite once per clone,
 # a developer many times): keys include the jaxlib version, so stale hits cannot occur.
 _CACHE = Path(__file__).resolve().parents[1] / ".jax_cache"
-jax.config.update("jax_compilation_cache_dir", os.environ.get("BIFID_JAX_CACHE", str(_CACHE)))
+os.environ.setdefault("BIFID_JAX_CACHE", str(_CACHE))  # the CLI's cache, in-process too
+jax.config.update("jax_compilation_cache_dir", os.environ["BIFID_JAX_CACHE"])
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
 
 SHARED_DATA = Path(__file__).resolve().parents[2] / "shared" / "data"
@@ -38,6 +43,38 @@ def shared_data() -> Path:
         pytest.skip("../shared/data not available")
     return SHARED_DATA
 
-# tests/wip holds the tests of capabilities still being built (see the issue notes); they
-# are not part of the default suite until their capability is finished.
-collect_ignore_glob = ["wip/*"]
+
+@dataclass
+class CliResult:
+    """What one ``bifid`` invocation produced: exit code, stdout, stderr."""
+
+    code: int
+    stdout: str
+    stderr: str
+
+    @property
+    def json(self) -> Any:
+        """The one JSON object printed on stdout (``--json``)."""
+        return json.loads(self.stdout)
+
+
+@pytest.fixture
+def bifid_cli(capsys: pytest.CaptureFixture[str]):
+    """Run ``bifid ARGS...`` in-process (``bifid.cli.main``) and return a :class:`CliResult`.
+
+    In-process keeps JAX's compiled functions across calls, so a test can run many
+    commands on small problems quickly; the exit code is the one the console script gives.
+    """
+    from bifid.cli import main
+
+    def run(*args: Any) -> CliResult:
+        capsys.readouterr()
+        try:
+            main([str(a) for a in args])
+            code = 0
+        except SystemExit as exc:
+            code = exc.code if isinstance(exc.code, int) else (0 if exc.code is None else 1)
+        out, err = capsys.readouterr()
+        return CliResult(code, out, err)
+
+    return run
