@@ -17,10 +17,10 @@ $(STAMP): pyproject.toml
 install: $(STAMP)
 
 demo: $(STAMP)
-	$(BIN)/bifid demo flutter --out out
+	$(BIN)/bifid demo flutter --out out --resume
 
 demo-forced: $(STAMP)
-	$(BIN)/bifid demo forced --out out-forced
+	$(BIN)/bifid demo forced --out out-forced --resume
 
 # render the demo report in headless Chromium (Debian package `chromium`) and check that
 # every figure shows; installs chromium with apt when it is missing and we may

@@ -25,7 +25,8 @@ BIFID = Path(sys.executable).with_name("bifid")
 
 def run_demo(which: str, out: Path) -> tuple[float, dict]:
     t0 = time.perf_counter()
-    r = subprocess.run([str(BIFID), "demo", which, "--out", str(out), "--json", "--quiet"],
+    r = subprocess.run([str(BIFID), "demo", which, "--out", str(out), "--resume", "--json",
+                        "--quiet"],
                        capture_output=True, text=True)
     wall = time.perf_counter() - t0
     if r.returncode != 0:

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import errno
 import json
 import math
 import os
@@ -288,11 +289,10 @@ def test_save_dataset_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch)
     save_dataset(_lco_ds(2), path)
     before = path.read_bytes()
 
-    def half_write(self, target, *args, **kwargs):
-        Path(target).write_bytes(b"\x89HDF\r\n\x1a\n partial")
-        raise OSError("disk full")
+    def disk_full(fd):  # the bytes were handed to the kernel; the disk refuses them
+        raise OSError(errno.ENOSPC, "disk full")
 
-    monkeypatch.setattr(xr.Dataset, "to_netcdf", half_write)
+    monkeypatch.setattr(os, "fsync", disk_full)
     with pytest.raises(OSError, match="disk full"):
         save_dataset(_lco_ds(3), path)
     assert path.read_bytes() == before  # old file intact
@@ -324,11 +324,10 @@ def test_append_record_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
     append_record(path, _lco(1.0, 100), signal_names=["h", "alpha"])
     before = path.read_bytes()
 
-    def boom(self, target, *args, **kwargs):
-        Path(target).write_bytes(b"garbage")
+    def boom(fd):  # killed between writing the bytes and syncing them
         raise RuntimeError("killed")
 
-    monkeypatch.setattr(xr.Dataset, "to_netcdf", boom)
+    monkeypatch.setattr(os, "fsync", boom)
     with pytest.raises(RuntimeError):
         append_record(path, _lco(2.0, 100))
     monkeypatch.undo()

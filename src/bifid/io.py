@@ -5,6 +5,15 @@ temporary file in the destination's directory and moved over the destination wit
 :func:`os.replace` only once it is complete, so an interrupted run never leaves a
 half-written file (the old file, if any, stays intact).
 
+:func:`atomic_write_netcdf` serialises a dataset in memory before anything touches the
+disk: HDF5 writing straight to a file system that fills up crashes the interpreter when the
+library later closes the half-written file, while Python's own write raises a clean
+:class:`OSError` (``ENOSPC``) that leaves the destination intact.
+
+:func:`check_input_file` and :func:`check_output_path` name what is wrong with a path
+(missing, too long, not a regular file, parent missing, not writable) before a command
+spends any time computing.
+
 Models are directories holding ``model.json`` (type, hyperparameters, fitted scalar
 parameters, settings, versions) and ``arrays.npz`` (numeric arrays only). Nothing is ever
 pickled, and :func:`load_model` refuses any file that would need unpickling
@@ -14,12 +23,14 @@ pickled, and :func:`load_model` refuses any file that would need unpickling
 from __future__ import annotations
 
 import contextlib
+import errno
 import hashlib
 import io
 import json
 import math
 import os
 import platform
+import stat
 import sys
 import tempfile
 import time
@@ -37,13 +48,26 @@ MODEL_ARRAYS = "arrays.npz"
 MODEL_FORMAT = "bifid-model"
 MODEL_FORMAT_VERSION = 1
 _MAX_JSON_BYTES = 64 * 1024 * 1024
+_TMP_STEM = 64  # characters of the destination's name kept in a temporary file's name
+_MIN_FREE_BYTES = 64 * 1024  # an output directory with less free space is refused early
+_ENVIRONMENT_ERRNOS = {
+    errno.EROFS,
+    errno.EACCES,
+    errno.EPERM,
+    errno.ENOSPC,
+    errno.EDQUOT,
+    errno.EIO,
+}
 
 __all__ = [
     "MODEL_ARRAYS",
     "MODEL_JSON",
     "atomic_path",
     "atomic_write_bytes",
+    "atomic_write_netcdf",
     "atomic_write_text",
+    "check_input_file",
+    "check_output_path",
     "jsonable",
     "load_model",
     "run_info",
@@ -79,7 +103,9 @@ def atomic_path(path: str | os.PathLike[str]) -> Iterator[Path]:
         )
     if dest.is_dir():
         raise BifidInputError(f"cannot write {str(dest)!r}: it is a directory; give a file name.")
-    fd, tmp_name = tempfile.mkstemp(prefix=f".{dest.name}.", suffix=".tmp", dir=parent)
+    # a short prefix: the temporary name must fit the file system's name limit whenever
+    # the destination's name does
+    fd, tmp_name = tempfile.mkstemp(prefix=f".{dest.name[:_TMP_STEM]}.", suffix=".tmp", dir=parent)
     os.close(fd)
     tmp = Path(tmp_name)
     try:
@@ -112,6 +138,186 @@ def atomic_write_bytes(path: str | os.PathLike[str], data: bytes) -> None:
 def atomic_write_text(path: str | os.PathLike[str], text: str, encoding: str = "utf-8") -> None:
     """Write ``text`` to ``path`` atomically (temporary file + :func:`os.replace`)."""
     atomic_write_bytes(path, text.encode(encoding))
+
+
+def atomic_write_netcdf(obj: Any, path: str | os.PathLike[str], **to_netcdf: Any) -> None:
+    """Write an xarray ``Dataset`` or ``DataTree`` to ``path`` as netCDF-4, atomically.
+
+    The file is built in memory (``obj.to_netcdf(engine="h5netcdf")`` without a path) and
+    written with :func:`atomic_write_bytes`: HDF5 never writes to the destination's file
+    system, so a full disk or a quota gives an :class:`OSError` (``ENOSPC``/``EDQUOT``),
+    not an HDF5 crash, and the previous file stays as it was.
+
+    Parameters
+    ----------
+    obj
+        Anything with xarray's ``to_netcdf`` method.
+    path
+        Destination file.
+    **to_netcdf
+        Passed on to ``to_netcdf`` (``encoding=...``).
+    """
+    blob = obj.to_netcdf(None, engine="h5netcdf", **to_netcdf)
+    atomic_write_bytes(path, bytes(blob))
+
+
+# ---------------------------------------------------------------------------------------------
+# path checks
+# ---------------------------------------------------------------------------------------------
+
+_FILE_KINDS = (
+    (stat.S_ISFIFO, "a FIFO (named pipe)"),
+    (stat.S_ISCHR, "a character device"),
+    (stat.S_ISBLK, "a block device"),
+    (stat.S_ISSOCK, "a socket"),
+)
+
+
+def _short(path: str | os.PathLike[str], limit: int = 120) -> str:
+    """``path`` for a message: long paths keep their start and end only."""
+    text = os.fspath(path)
+    if len(text) <= limit:
+        return text
+    return f"{text[: limit // 2]}…{text[-(limit // 3) :]} ({len(text)} characters)"
+
+
+def _kind_of_special(mode: int) -> str:
+    return next((name for test, name in _FILE_KINDS if test(mode)), "not a regular file")
+
+
+def _name_limits(directory: Path) -> tuple[int, int]:
+    """The file system's limits on one name and on a whole path (bytes)."""
+    try:
+        return (os.pathconf(directory, "PC_NAME_MAX"), os.pathconf(directory, "PC_PATH_MAX"))
+    except (OSError, ValueError, AttributeError):  # not POSIX, or the directory is missing
+        return 255, 4096
+
+
+def _is_dir(path: Path) -> bool:
+    try:
+        return stat.S_ISDIR(os.stat(path).st_mode)
+    except (OSError, ValueError):  # missing, too long, an embedded NUL
+        return False
+
+
+def _check_name_lengths(path: Path, what: str) -> None:
+    anchor = next((p for p in path.absolute().parents if _is_dir(p)), Path("/"))
+    name_max, path_max = _name_limits(anchor)
+    too_long = [part for part in path.parts if len(os.fsencode(part)) > name_max]
+    if too_long:
+        raise BifidInputError(
+            f"{what} {_short(path)}: a name in it is {len(os.fsencode(too_long[0]))} bytes "
+            f"long; the file system allows {name_max}. Choose a shorter name."
+        )
+    if len(os.fsencode(os.fspath(path.absolute()))) >= path_max:
+        raise BifidInputError(
+            f"{what} {_short(path)}: the path is longer than the file system's limit of "
+            f"{path_max} bytes. Choose a shorter path."
+        )
+
+
+def check_input_file(path: str | os.PathLike[str], what: str = "input") -> Path:
+    """Check that ``path`` names an existing regular file (symbolic links followed).
+
+    Run before a file is opened: a FIFO would block the reader forever and a device such
+    as ``/dev/zero`` never ends.
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    BifidInputError
+        If the path is too long, missing, a directory, or not a regular file (FIFO,
+        device, socket); the message names which.
+    """
+    path = Path(path)
+    _check_name_lengths(path, what)
+    try:
+        mode = os.stat(path).st_mode
+    except FileNotFoundError:
+        raise BifidInputError(f"{what} {_short(path)} does not exist.") from None
+    except NotADirectoryError:
+        raise BifidInputError(
+            f"{what} {_short(path)}: a component of the path is not a directory."
+        ) from None
+    except OSError as exc:
+        if exc.errno == errno.ENAMETOOLONG:
+            raise BifidInputError(f"{what} {_short(path)}: file name too long.") from None
+        raise
+    if stat.S_ISDIR(mode):
+        raise BifidInputError(f"{what} {_short(path)} is a directory, not a file.")
+    if not stat.S_ISREG(mode):
+        raise BifidInputError(
+            f"{what} {_short(path)} is {_kind_of_special(mode)}, not a regular file; "
+            "give a file on disk."
+        )
+    return path
+
+
+def check_output_path(
+    path: str | os.PathLike[str], what: str = "output", *, directory: bool = False
+) -> Path:
+    """Check, before any computation, that ``path`` can be written.
+
+    Checks the length of every name against the file system's limit, that the parent
+    directory exists, that an existing ``path`` is of the expected kind (a regular file,
+    or a directory when ``directory``), and that the parent is writable with some free
+    space left (a temporary file is created and removed there).
+
+    Returns
+    -------
+    Path
+        ``path``.
+
+    Raises
+    ------
+    BifidInputError
+        What the command line can fix: a name too long, a missing parent, an existing path
+        of the wrong kind.
+    OSError
+        What the environment must fix, with its ``errno``: ``EROFS`` (read-only file
+        system), ``EACCES`` / ``EPERM`` (permission), ``ENOSPC`` (no space left).
+    """
+    path = Path(path)
+    _check_name_lengths(path, what)
+    parent = path.parent if str(path.parent) else Path(".")
+    if not parent.is_dir():
+        reason = "is not a directory" if parent.exists() else "does not exist"
+        raise BifidInputError(
+            f"{what} {_short(path)}: directory {_short(parent)} {reason}; create it first."
+        )
+    if path.exists() or path.is_symlink():
+        mode = os.stat(path).st_mode if path.exists() else 0
+        if directory and not stat.S_ISDIR(mode):
+            raise BifidInputError(f"{what} {_short(path)} exists and is not a directory.")
+        if not directory and stat.S_ISDIR(mode):
+            raise BifidInputError(f"{what} {_short(path)} is a directory; give a file name.")
+        if not directory and not stat.S_ISREG(mode):
+            raise BifidInputError(
+                f"{what} {_short(path)} is {_kind_of_special(mode)}; bifid writes only "
+                "regular files."
+            )
+    probe_dir = path if directory and path.is_dir() else parent
+    try:
+        fd, probe = tempfile.mkstemp(prefix=".bifid-probe-", dir=probe_dir)
+    except OSError as exc:
+        if exc.errno in _ENVIRONMENT_ERRNOS:  # read-only, permission, no space: exit 4
+            raise OSError(exc.errno, exc.strerror, os.fspath(probe_dir)) from None
+        raise BifidInputError(
+            f"{what} {_short(path)}: cannot create a file in {_short(probe_dir)} ({exc.strerror})."
+        ) from None
+    os.close(fd)
+    os.unlink(probe)
+    free = math.inf
+    with contextlib.suppress(OSError, AttributeError):  # statvfs is POSIX only
+        vfs = os.statvfs(probe_dir)
+        free = vfs.f_bavail * vfs.f_frsize
+    if free < _MIN_FREE_BYTES:
+        raise OSError(errno.ENOSPC, os.strerror(errno.ENOSPC), os.fspath(probe_dir))
+    return path
 
 
 # ---------------------------------------------------------------------------------------------
@@ -259,6 +465,11 @@ def _read_npz_safely(blob: bytes, where: str) -> dict[str, np.ndarray]:
         with np.load(io.BytesIO(blob), allow_pickle=False) as npz:
             for name in npz.files:
                 arr = npz[name]
+                if not isinstance(arr, np.ndarray):  # a member that is not a .npy file
+                    raise BifidInputError(
+                        f"{where}: member {name!r} is not a .npy array; an .npz archive holds "
+                        "only .npy arrays."
+                    )
                 if arr.dtype.kind not in "biufc":
                     raise BifidInputError(
                         f"{where}: array {name!r} has dtype {arr.dtype}; only numeric arrays are "
@@ -295,6 +506,7 @@ def load_model(directory: str | os.PathLike[str]) -> tuple[dict[str, Any], dict[
         Missing or malformed files, a checksum mismatch, or any pickled content.
     """
     directory = Path(directory)
+    _check_name_lengths(directory, "model")
     if not directory.is_dir():
         raise BifidInputError(
             f"model {str(directory)!r} is not a directory; a bifid model is a directory holding "

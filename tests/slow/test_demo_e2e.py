@@ -20,7 +20,7 @@ pytestmark = pytest.mark.slow
 def _run(which, out, capsys):
     capsys.readouterr()
     with pytest.raises(SystemExit) as e:
-        main(["demo", which, "--out", str(out), "--json", "--quiet"])
+        main(["demo", which, "--out", str(out), "--resume", "--json", "--quiet"])
     assert e.value.code == 0
     return json.loads(capsys.readouterr().out)
 

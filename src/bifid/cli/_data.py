@@ -9,7 +9,7 @@ from typing import TYPE_CHECKING, Any
 
 import typer
 
-from bifid.cli._common import app, emit_json, user_errors
+from bifid.cli._common import ForceOpt, app, check_outputs, emit_json, user_errors
 from bifid.errors import BifidInputError
 from bifid.io import run_info
 
@@ -51,9 +51,11 @@ def import_command(
     ),
     out: Path = typer.Option(None, "--out", "-o", help="Dataset file to write (netCDF)."),  # noqa: B008
     fmt: str = typer.Option(
-        "auto", "--format",
+        "auto",
+        "--format",
         help="auto | flutter-cbc | flutter-openloop | em-scurve | em-backbone | csv | netcdf",
     ),
+    force: ForceOpt = False,
     json_out: bool = typer.Option(False, "--json", help="Print one JSON object on stdout."),
 ) -> None:
     """Import measurements into a bifid dataset (format detected from the file content)."""
@@ -61,16 +63,15 @@ def import_command(
         from bifid.data import FORMATS, expand_paths, import_files, save_dataset
 
         if fmt not in FORMATS:
-            raise BifidInputError(f"--format {fmt!r} is unknown; choose one of "
-                                  f"{', '.join(FORMATS)}.")
+            raise BifidInputError(
+                f"--format {fmt!r} is unknown; choose one of {', '.join(FORMATS)}."
+            )
         if not paths:
             raise BifidInputError("give at least one input file or directory.")
         if out is None:
             raise BifidInputError("--out DATA.nc is required.")
         files = expand_paths(paths)
-        out_resolved = out.resolve()
-        if any(p.resolve() == out_resolved for p in files):
-            raise BifidInputError(f"--out {out} is one of the inputs; inputs are never modified.")
+        check_outputs(out=out, force=force, inputs=files)
         settings = run_info("import", inputs=[str(p) for p in files], format=fmt, out=str(out))
         ds = import_files(files, format=fmt, settings=settings)
         save_dataset(ds, out)
@@ -94,9 +95,13 @@ def import_command(
         if kind == "lco":
             f = r["frequency"]
             fs = f"{f / (2 * math.pi):.4g} Hz" if math.isfinite(f) else "?"
-            print(f"  param={r['param']:<8.4g} {stab:<9} n={r['n_samples']:<7d} "
-                  f"fs={r['sample_rate']:g} Hz  f={fs}")
+            print(
+                f"  param={r['param']:<8.4g} {stab:<9} n={r['n_samples']:<7d} "
+                f"fs={r['sample_rate']:g} Hz  f={fs}"
+            )
         else:
-            print(f"  omega={r['omega']:<9.5g} forcing={r['forcing']:<9.4g} "
-                  f"amplitude={r['amplitude']:<9.4g} curve={r['curve']} {stab}")
+            print(
+                f"  omega={r['omega']:<9.5g} forcing={r['forcing']:<9.4g} "
+                f"amplitude={r['amplitude']:<9.4g} curve={r['curve']} {stab}"
+            )
     sys.stdout.flush()

@@ -31,7 +31,7 @@ from bifid.data._netcdf import forced_dataset, forced_records, lco_dataset, lco_
 from bifid.data._records import ForcedRecord, LCORecord
 from bifid.data._validate import parse_json_attr, validate_dataset
 from bifid.errors import BifidInputError
-from bifid.io import atomic_write_text
+from bifid.io import atomic_write_text, check_input_file
 from bifid.signal import estimate_frequency
 
 __all__ = ["ThesisCurve", "load_thesis_curves", "read_csv_dataset", "write_csv"]
@@ -47,8 +47,7 @@ _TIME_RTOL = 1e-3
 
 
 def _read_text(path: Path) -> str:
-    if not path.is_file():
-        raise BifidInputError(f"{path}: no such file.")
+    check_input_file(path)
     size = path.stat().st_size
     if size > MAX_CSV_BYTES:
         raise BifidInputError(f"{path}: {size / 1e9:.1f} GB is larger than the 2 GB CSV limit.")
@@ -82,11 +81,17 @@ def _float(cell: str, col: str, line: int, where: str, *, allow_empty: bool = Fa
             return math.nan
         raise BifidInputError(f"{where}, line {line}: column {col!r} is empty.")
     try:
-        return float(cell)
+        value = float(cell)
     except ValueError:
         raise BifidInputError(
             f"{where}, line {line}: column {col!r} must be a number, got {cell[:40]!r}."
         ) from None
+    if math.isinf(value) or (math.isnan(value) and not allow_empty):
+        raise BifidInputError(
+            f"{where}, line {line}: column {col!r} must be a finite number, got {cell[:40]!r}"
+            + (" (beyond the float64 range)." if math.isinf(value) else ".")
+        )
+    return value
 
 
 def read_csv_dataset(path: str | os.PathLike[str]) -> xr.Dataset:

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import json
 import os
+import stat
 from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
@@ -15,7 +16,7 @@ from bifid.data._matlab import em_dataset, flutter_cbc_dataset, load_mat, open_l
 from bifid.data._netcdf import combine_datasets, load_dataset
 from bifid.data._validate import parse_json_attr
 from bifid.errors import BifidInputError
-from bifid.io import jsonable
+from bifid.io import check_input_file, jsonable
 
 __all__ = ["FORMATS", "detect_format", "expand_paths", "import_files"]
 
@@ -31,18 +32,23 @@ def expand_paths(paths: Sequence[str | os.PathLike[str]]) -> list[Path]:
     out: list[Path] = []
     for p in paths:
         p = Path(p)
-        if p.is_dir():
+        if _is_directory(p):
             found = sorted(q for q in p.iterdir() if q.is_file() and q.suffix.lower() in _SUFFIXES)
             if not found:
                 raise BifidInputError(f"{p}: directory holds no .mat, .csv or .nc files.")
             out.extend(found)
-        elif p.is_file():
-            out.append(p)
         else:
-            raise BifidInputError(f"{p}: no such file or directory.")
+            out.append(check_input_file(p))
     if not out:
         raise BifidInputError("no input files given.")
     return out
+
+
+def _is_directory(path: Path) -> bool:
+    try:
+        return stat.S_ISDIR(os.stat(path).st_mode)
+    except (OSError, ValueError):  # missing, name too long, ...: check_input_file says which
+        return False
 
 
 def _mat_format(path: Path) -> str:
@@ -117,9 +123,7 @@ def detect_format(path: str | os.PathLike[str]) -> str:
         For unreadable or unsupported files, with a pointer to the right loader when the
         file is a known non-time-series file (free decay, amplitude tables).
     """
-    path = Path(path)
-    if not path.is_file():
-        raise BifidInputError(f"{path}: no such file.")
+    path = check_input_file(path)
     with open(path, "rb") as fh:
         magic = fh.read(128)
     if magic.startswith(_HDF5_MAGIC):

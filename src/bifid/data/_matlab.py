@@ -27,6 +27,7 @@ from bifid.data._matcheck import check_mat_v5
 from bifid.data._netcdf import forced_dataset, lco_dataset
 from bifid.data._records import ForcedRecord, LCORecord
 from bifid.errors import BifidInputError
+from bifid.io import check_input_file
 from bifid.signal import estimate_frequency, fill_gaps, periodic_amplitude
 
 __all__ = [
@@ -47,11 +48,8 @@ __all__ = [
 
 HEAVE_M_PER_V = 0.18  # flutter rig heave sensor, CBC and free-decay files
 OPEN_LOOP_MM_PER_V = 470.0  # flutter rig heave sensor, 2018 open-loop files
-CBC_SAMPLE_RATE = 5000.0  # Hz
-OPEN_LOOP_SAMPLE_RATE = 250.0  # Hz (5 kHz decimated by 20)
 PITCH_WRAP_VALUE = 6.2832  # pitch sensor wrap/clipping value in cbc_model2 [rad]
 PITCH_WRAP_TOL = 1e-4
-EM_SAMPLE_RATE = 5000.0  # Hz
 # The base and tip lasers read displacement with opposite signs: with the recorded signs
 # the backbone curves (phase resonance, a lag of pi/2 by construction of the experiment)
 # show a lag of -pi/2. The force reference is therefore -base_disp.
@@ -74,9 +72,7 @@ def load_mat(path: str | os.PathLike[str]) -> dict[str, Any]:
     """
     import scipy.io
 
-    path = Path(path)
-    if not path.is_file():
-        raise BifidInputError(f"{path}: no such file.")
+    path = check_input_file(path)
     size = path.stat().st_size
     if size > MAX_MAT_BYTES:
         raise BifidInputError(f"{path}: {size / 1e6:.0f} MB is larger than the 512 MB limit.")
@@ -180,6 +176,23 @@ def _struct(value: Any, name: str, path: Path) -> Any:
     return value
 
 
+def _experiment_par(exp: Any, path: Path) -> Any:
+    """``exp.par`` of a rig file, which must give ``sample_freq``: no rate is assumed."""
+    if exp is None or not hasattr(exp, "_fieldnames"):
+        raise BifidInputError(
+            f"{path}: the experiment struct 'exp' is missing, so the sample rate "
+            "(exp.par.sample_freq) is unknown; bifid does not assume one. Export the file "
+            "with its exp struct, or write the records as CSV with a time column."
+        )
+    par = getattr(exp, "par", None)
+    if par is None or getattr(par, "sample_freq", None) is None:
+        raise BifidInputError(
+            f"{path}: exp.par.sample_freq (the sample rate) is missing; bifid does not "
+            "assume one."
+        )
+    return par
+
+
 # ---------------------------------------------------------------------------------------------
 # flutter rig: PP-CBC limit cycles (cbc_model1, cbc_model2)
 # ---------------------------------------------------------------------------------------------
@@ -224,10 +237,8 @@ def read_flutter_cbc(path: str | os.PathLike[str]) -> LCORecord:
     speed = _scalar(_need(m, "Wind_sped", path, "wind speed"), "Wind_sped", path)
     freq_hz = _scalar(_need(m, "freq_actual", path, "LCO frequency [Hz]"), "freq_actual", path,
                       positive=True)
-    fs = CBC_SAMPLE_RATE
-    par = getattr(m.get("exp"), "par", None)
-    if par is not None and _opt_scalar(par, "sample_freq") is not None:
-        fs = _scalar(par.sample_freq, "exp.par.sample_freq", path, positive=True)
+    par = _experiment_par(m.get("exp"), path)
+    fs = _scalar(par.sample_freq, "exp.par.sample_freq", path, positive=True)
     if freq_hz >= fs / 2:
         raise BifidInputError(f"{path}: freq_actual = {freq_hz:g} Hz is not below the Nyquist "
                               f"frequency {fs / 2:g} Hz.")
@@ -355,9 +366,7 @@ def load_free_decay(path: str | os.PathLike[str]) -> FreeDecay:
     data = _matrix(_need(m, "data", path, "2 × n: pitch, heave"), "data", path, min_rows=2,
                    min_cols=8)
     _finite_rows(data, (0, 1), "data", path)
-    fs = CBC_SAMPLE_RATE
-    if "fs" in m:
-        fs = _scalar(m["fs"], "fs", path, positive=True)
+    fs = _scalar(_need(m, "fs", path, "sample rate [Hz]"), "fs", path, positive=True)
     n = data.shape[1]
     rest = slice(n - n // 4, n)
     p_off = float(np.median(data[0, rest]))
@@ -420,6 +429,16 @@ class OpenLoopRun:
         return float(np.median(halves)), float(np.ptp(halves))
 
 
+def _rate_of_time(t: np.ndarray, path: Path) -> float:
+    """Sample rate of a uniformly sampled ``time`` vector [s]."""
+    dt = np.diff(t)
+    step = float(np.median(dt)) if dt.size else 0.0
+    if not step > 0 or np.max(np.abs(dt - step)) > 1e-3 * step:
+        raise BifidInputError(f"{path}: time is not uniformly increasing; cannot tell the "
+                              "sample rate.")
+    return float(f"{(t.shape[0] - 1) / (t[-1] - t[0]):.9g}")  # 250.0, not 249.99999999999977
+
+
 def _direction(name: str) -> str:
     for d in ("TowardsHB", "BackFromHB", "Hammer"):
         if d.lower() in name.lower():
@@ -428,7 +447,8 @@ def _direction(name: str) -> str:
 
 
 def load_open_loop(path: str | os.PathLike[str]) -> OpenLoopRun:
-    """Read one ``open_loop_2018`` file: ``Speed``, heave row 2 × 470 → mm, 250 Hz."""
+    """Read one ``open_loop_2018`` file: ``Speed``, heave row 2 × 470 → mm; the sample rate
+    (250 Hz in the rig's files) from the file's ``time`` vector."""
     path = Path(path)
     m = load_mat(path)
     data = _matrix(_need(m, "data", path, "6 × n channels"), "data", path, min_rows=2,
@@ -436,7 +456,8 @@ def load_open_loop(path: str | os.PathLike[str]) -> OpenLoopRun:
     _finite_rows(data, (1,), "data", path)
     speed = _scalar(_need(m, "Speed", path, "wind speed [m/s]"), "Speed", path)
     heave = (data[1] - float(np.mean(data[1]))) * OPEN_LOOP_MM_PER_V
-    fs = OPEN_LOOP_SAMPLE_RATE
+    fs = _rate_of_time(_vector(_need(m, "time", path, "sample times [s]"), "time", path,
+                               n=data.shape[1]), path)
     return OpenLoopRun(speed=speed, direction=_direction(path.name),
                        time=np.arange(heave.shape[0]) / fs, heave_mm=heave, sample_rate=fs,
                        source=str(path))
@@ -612,10 +633,8 @@ def read_em_curve(path: str | os.PathLike[str], curve: int = 0) -> tuple[list[Fo
     points = np.atleast_1d(getattr(exp, "data", np.array([])))
     if points.size == 0:
         raise BifidInputError(f"{path}: exp.data holds no points.")
-    fs = EM_SAMPLE_RATE
-    par = getattr(exp, "par", None)
-    if par is not None and _opt_scalar(par, "sample_freq") is not None:
-        fs = _scalar(par.sample_freq, "exp.par.sample_freq", path, positive=True)
+    par = _experiment_par(exp, path)
+    fs = _scalar(par.sample_freq, "exp.par.sample_freq", path, positive=True)
     n_modes = 7
     fourier = getattr(exp, "fourier", None)
     if fourier is not None and _opt_scalar(fourier, "n_modes") is not None:

@@ -17,10 +17,11 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from bifid.data._hdf5check import check_self_contained
 from bifid.data._records import ForcedRecord, LCORecord
 from bifid.data._validate import EXTRA_PREFIX, parse_json_attr, validate_dataset
 from bifid.errors import BifidInputError
-from bifid.io import atomic_path, jsonable
+from bifid.io import atomic_write_netcdf, check_input_file, jsonable
 from bifid.signal import phase_lag
 
 __all__ = [
@@ -307,8 +308,9 @@ def forced_dataset(
 def save_dataset(ds: xr.Dataset, path: str | os.PathLike[str]) -> Path:
     """Validate ``ds`` and write it to ``path`` as netCDF-4 (h5netcdf), atomically.
 
-    The file appears only once complete (temporary file + :func:`os.replace`); on any
-    failure the previous file, if any, is untouched.
+    The file is built in memory and appears only once complete (temporary file +
+    :func:`os.replace`, :func:`bifid.io.atomic_write_netcdf`); on any failure, a full disk
+    included, the previous file, if any, is untouched.
     """
     ds = validate_dataset(ds, "save_dataset")
     path = Path(path)
@@ -316,8 +318,7 @@ def save_dataset(ds: xr.Dataset, path: str | os.PathLike[str]) -> Path:
     for name, var in ds.variables.items():
         if var.dtype.kind == "f" and var.ndim >= 2:
             encoding[name] = {"zlib": True, "complevel": 1}
-    with atomic_path(path) as tmp:
-        ds.to_netcdf(tmp, engine="h5netcdf", encoding=encoding)
+    atomic_write_netcdf(ds, path, encoding=encoding)
     return path
 
 
@@ -325,7 +326,9 @@ def load_dataset(path: str | os.PathLike[str]) -> xr.Dataset:
     """Load and validate a bifid dataset.
 
     The file is read with h5netcdf (HDF5 through h5py: no code in the file is ever
-    executed) into memory and closed.
+    executed) into memory and closed. Files that take data from outside themselves
+    (external storage, virtual datasets, external links) are refused before they are
+    opened (:func:`~bifid.data._hdf5check.check_self_contained`).
 
     Raises
     ------
@@ -333,12 +336,9 @@ def load_dataset(path: str | os.PathLike[str]) -> xr.Dataset:
         If the file is missing, is not netCDF-4/HDF5, or departs from the schema in any way
         (see :func:`bifid.data.validate_dataset`).
     """
-    path = Path(path)
+    path = check_input_file(path, "dataset")
     where = str(path)
-    if not path.exists():
-        raise BifidInputError(f"dataset {where!r} does not exist.")
-    if not path.is_file():
-        raise BifidInputError(f"dataset {where!r} is not a file.")
+    check_self_contained(path, where)
     try:
         with xr.open_dataset(path, engine="h5netcdf", decode_times=False,
                              decode_timedelta=False) as raw:
