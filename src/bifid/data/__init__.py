@@ -20,22 +20,21 @@ loaders of the files that are not limit-cycle records: :func:`load_free_decay`,
 """
 
 from bifid.data._csv import ThesisCurve, load_thesis_curves, read_csv_dataset, write_csv
-from bifid.data._import import FORMATS, detect_format, expand_paths, import_files
-from bifid.data._matlab import (
+from bifid.data._em_rig import em_dataset, read_em_curve
+from bifid.data._flutter_rig import (
     FreeDecay,
     OpenLoopRun,
     ULCOAmplitudes,
-    em_dataset,
     flutter_cbc_dataset,
     load_free_decay,
-    load_mat,
     load_open_loop,
     load_ulco_amplitudes,
     open_loop_dataset,
     open_loop_summary,
-    read_em_curve,
     read_flutter_cbc,
 )
+from bifid.data._import import FORMATS, detect_format, expand_paths, import_files
+from bifid.data._matlab import load_mat
 from bifid.data._netcdf import (
     append_record,
     combine_datasets,

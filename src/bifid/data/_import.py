@@ -12,7 +12,9 @@ from typing import Any
 import xarray as xr
 
 from bifid.data._csv import read_csv_dataset
-from bifid.data._matlab import em_dataset, flutter_cbc_dataset, load_mat, open_loop_dataset
+from bifid.data._em_rig import em_dataset
+from bifid.data._flutter_rig import flutter_cbc_dataset, open_loop_dataset
+from bifid.data._matlab import load_mat
 from bifid.data._netcdf import combine_datasets, load_dataset
 from bifid.data._validate import parse_json_attr
 from bifid.errors import BifidInputError
