@@ -55,26 +55,88 @@ def test_param_vector_rejects_unknown_and_non_finite_values():
         get_system("not-a-system")
 
 
-def test_user_system_registration_and_continuation():
-    """Check that a user-registered system can be continued like a built-in one."""
-    from bifid.continuation import continue_from_hopf
+def test_user_system_registration():
+    """Check that a user-registered system is found by name, with the field it was given
+    (Hopf normal form: eigenvalues lam +- i at the origin, by the JAX Jacobian)."""
+    import jax
 
     def field(x, p):  # Hopf normal form with l1 < 0 written by a user
         r2 = x[0] ** 2 + x[1] ** 2
         return jnp.stack([p[0] * x[0] - x[1] - x[0] * r2, x[0] + p[0] * x[1] - x[1] * r2])
 
-    register("user_hopf", System(name="user_hopf", states=("a", "b"),
-                                 parameters=(Parameter("lam", 0.0, "nd", "parameter"),),
-                                 field=field, default_param="lam"), overwrite=True)
+    register(
+        "user_hopf",
+        System(
+            name="user_hopf",
+            states=("a", "b"),
+            parameters=(Parameter("lam", 0.0, "nd", "parameter"),),
+            field=field,
+            default_param="lam",
+        ),
+        overwrite=True,
+    )
     with pytest.raises(BifidInputError, match="already registered"):
         register("user_hopf", get_system("hopf"))
-    eq, (br,) = continue_from_hopf(get_system("user_hopf"), "lam", -0.2, 0.3, n_mesh=16)
-    assert eq.special("hopf")[0].param == pytest.approx(0.0, abs=1e-12)
-    assert np.allclose(br.data["amplitude"][:, 0] ** 2, br.params, atol=1e-10)
+    s = get_system("user_hopf")
+    assert "user_hopf" in list_systems() and s.default_param == "lam"
+    jac = np.asarray(jax.jacfwd(s.field)(jnp.zeros(2), s.param_vector(lam=-0.2)))
+    np.testing.assert_allclose(
+        sorted(np.linalg.eigvals(jac), key=np.imag), [-0.2 - 1j, -0.2 + 1j], atol=1e-15
+    )
 
 
 def test_forced_system_needs_forcing_parameters():
     """Check that a forced System without F/Omega is refused when built."""
     with pytest.raises(BifidInputError, match="needs parameters 'F' and 'Omega'"):
-        System(name="bad", states=("q",), parameters=(Parameter("k", 1.0),),
-               field=lambda x, p: -x, kind="forced", forcing_direction=lambda p: jnp.ones(1))
+        System(
+            name="bad",
+            states=("q",),
+            parameters=(Parameter("k", 1.0),),
+            field=lambda x, p: -x,
+            kind="forced",
+            forcing_direction=lambda p: jnp.ones(1),
+        )
+
+
+def test_each_built_in_has_one_home_with_envelope_and_cbc_settings():
+    """Check every built-in carries its envelope and CBC settings, naming its own states."""
+    from bifid.systems import BUILT_IN, Envelope
+
+    assert set(BUILT_IN) == {"hopf", "vanderpol", "flutter", "duffing", "shaw_pierre"}
+    for name in BUILT_IN:
+        s = get_system(name)
+        assert s is get_system(name) and s.source == "built-in"
+        assert isinstance(s.envelope, Envelope) and s.envelope.control_max > 0
+        assert set(s.envelope.states) <= set(s.states)
+        signals = [s.cbc.get(k) for k in ("x1", "x2", "signal")] + list(s.cbc["outputs"])
+        for signal in filter(None, signals):
+            assert signal.removesuffix("_dot") in s.states, (name, signal)
+        assert s.cbc["sample_rate"] > 0 and s.cbc["kp"] is not None
+
+
+def test_hopf_envelope_holds_the_stable_cycles_it_documents():
+    """Check the largest stable cycle for mu <= 1, r^2 = (a2 + sqrt(a2^2 + 4 mu))/2, lies
+    inside the hopf envelope (and is a zero of the radial equation of eq. 5.3)."""
+    s = get_system("hopf")
+    mu, a2 = 1.0, 1.0
+    r = math.sqrt((a2 + math.sqrt(a2**2 + 4 * mu)) / 2)
+    x = jnp.array([r, 0.0])
+    dx = s.field(x, s.param_vector(mu=mu))
+    assert float(dx[0]) == pytest.approx(0.0, abs=1e-12)  # on the cycle: no radial motion
+    lo, hi = s.envelope.states["u1"]
+    assert lo < -r and r < hi
+
+
+def test_registered_system_source_is_the_registering_file():
+    """Check that a system registered from code records that file as its source."""
+    register(
+        "user_decay",
+        System(
+            name="user_decay",
+            states=("q",),
+            parameters=(Parameter("k", 1.0),),
+            field=lambda x, p: -x,
+        ),
+        overwrite=True,
+    )
+    assert get_system("user_decay").source == __file__

@@ -1,4 +1,4 @@
-"""System metadata, parameter handling and the registry of reference systems.
+"""System metadata and parameter handling.
 
 A :class:`System` is a pure JAX vector field plus the metadata that the CLI, the
 virtual rigs and the identification code need (state names, parameters with units
@@ -130,6 +130,10 @@ class System:
         rate, measured signals, amplitude grid, ...).
     source : str
         Where the system came from: ``built-in``, a file path, or a package's entry point.
+    x0 : tuple of float, optional
+        A guess of an equilibrium at the nominal parameters, in state order, for systems whose
+        equilibrium is not near the origin (where continuation and CBC start their Newton
+        solves otherwise).
     """
 
     name: str
@@ -145,6 +149,7 @@ class System:
     envelope: Envelope | None = field(default=None, compare=False)
     cbc: Mapping[str, Any] = field(default_factory=dict, compare=False)
     source: str = field(default="built-in", compare=False)
+    x0: tuple[float, ...] | None = field(default=None, compare=False)
     _index: Mapping[str, int] = field(default_factory=dict, repr=False, compare=False)
 
     def __post_init__(self) -> None:
@@ -170,6 +175,17 @@ class System:
                 f"observed state {self.observed!r} is not a state of {self.name!r} "
                 f"(states: {', '.join(self.states)})."
             )
+        if self.x0 is not None:
+            try:
+                guess = tuple(float(v) for v in self.x0)
+            except (TypeError, ValueError):
+                guess = ()
+            if len(guess) != len(self.states) or not all(map(math.isfinite, guess)):
+                raise BifidInputError(
+                    f"x0 of {self.name!r} must be {len(self.states)} finite numbers "
+                    f"({', '.join(self.states)}), got {self.x0!r}."
+                )
+            object.__setattr__(self, "x0", guess)
 
     # -- parameters ---------------------------------------------------------------
     @property
@@ -256,57 +272,30 @@ class System:
             ],
             "observed": self.observed,
             "default_param": self.default_param,
+            "description": self.description,
             "source": self.source,
+            "x0": None if self.x0 is None else list(self.x0),
             "envelope": None if self.envelope is None else self.envelope.to_json(),
         }
 
 
-_REGISTRY: dict[str, Callable[[], System]] = {}
-
-
-def register(name: str, factory: Callable[[], System] | System, *, overwrite: bool = False) -> None:
-    """Register a system (or a zero-argument factory building one) under ``name``.
-
-    Examples
-    --------
-    >>> import jax.numpy as jnp
-    >>> from bifid.systems import Parameter, System, register, get_system
-    >>> def field(x, p):
-    ...     return jnp.array([x[1], -p[0] * x[0] - 0.1 * x[1] - x[0] ** 3])
-    >>> register("my_osc", System(name="my_osc", states=("q", "qd"),
-    ...          parameters=(Parameter("k", 1.0, "N/m"),), field=field,
-    ...          default_param="k"), overwrite=True)
-    >>> get_system("my_osc").n_states
-    2
-    """
-    if name in _REGISTRY and not overwrite:
-        raise BifidInputError(
-            f"A system named {name!r} is already registered; pass overwrite=True."
-        )
-    if isinstance(factory, System):
-        system = factory
-        _REGISTRY[name] = lambda: system
-    else:
-        _REGISTRY[name] = factory
-
-
-def get_system(name: str) -> System:
-    """Return the registered system ``name``.
+def state_direction(states: tuple[str, ...], *names: str) -> DirectionFn:
+    """The constant direction ``p -> e`` with ones on the equations of ``names``: where a
+    force or a controller enters (``state_direction(("q", "qd"), "qd")`` gives ``[0, 1]``).
 
     Raises
     ------
     BifidInputError
-        If no system of that name is registered.
+        If a name is not one of ``states``.
     """
-    try:
-        factory = _REGISTRY[name]
-    except KeyError:
+    unknown = [n for n in names if n not in states]
+    if unknown:
         raise BifidInputError(
-            f"Unknown system {name!r}; known systems: {', '.join(sorted(_REGISTRY))}."
-        ) from None
-    return factory()
+            f"{unknown[0]!r} is not a state (states: {', '.join(states)})."
+        )
+    vector = jnp.array([1.0 if s in names else 0.0 for s in states])
 
+    def direction(p: Array) -> Array:
+        return vector
 
-def list_systems() -> list[str]:
-    """Names of all registered systems."""
-    return sorted(_REGISTRY)
+    return direction
