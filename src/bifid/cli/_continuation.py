@@ -1,7 +1,16 @@
-"""``bifid systems | continue | frc | scurve | backbone``: continuation of reference systems."""
+"""``bifid continue | frc | scurve | backbone``: continuation of a system.
+
+Every command builds a :class:`~bifid.continuation.Diagram` and prints its
+:meth:`~bifid.continuation.Diagram.to_json` (the contract of ``DESIGN.md``) with the
+``settings`` that produced it. The one-line summary lists only located and verified
+points; candidates (detected, not verified) are listed as such. A branch cut short (step
+budget, failed step, unresolved mesh) makes the result incomplete: ``complete: false``
+and exit status 3, after the JSON.
+"""
 
 from __future__ import annotations
 
+import math
 import sys
 import warnings
 from collections.abc import Callable
@@ -13,9 +22,12 @@ import typer
 
 from bifid.cli._common import (
     EXIT_NUMERICAL,
+    ForceOpt,
     app,
+    check_outputs,
     emit_json,
     finite_range,
+    option_value,
     parse_sets,
     user_errors,
 )
@@ -32,6 +44,8 @@ OutOpt = Annotated[
     Path | None, typer.Option("--out", help="Save the branch as a netCDF dataset.")
 ]
 MeshOpt = Annotated[int, typer.Option("--mesh", help="Fourier collocation points (even).")]
+QuietOpt = Annotated[bool, typer.Option("--quiet", help="No progress display.")]
+ObserveOpt = Annotated[str | None, typer.Option("--observe", help="Observed state.")]
 
 
 class _Progress:
@@ -67,6 +81,7 @@ class _Progress:
         self._progress.__exit__(*exc)
 
 
+# ------------------------------------------------------------------------ validation
 def _system_and_params(name: str, sets: list[str] | None):
     from bifid.systems import get_system
 
@@ -75,73 +90,131 @@ def _system_and_params(name: str, sets: list[str] | None):
     return system, p
 
 
-def _finish(payload: dict[str, Any], branches: list, json_out: bool, summary: str) -> None:
-    failed = [b for b in branches if not b.complete]
-    payload["complete"] = not failed
-    payload["status"] = "failed" if failed else "ok"
-    if failed:
-        payload["message"] = failed[0].message
+def _check_mesh(mesh: int) -> int:
+    option_value("--mesh", mesh, ge=4, integer=True)
+    if mesh % 2:
+        raise BifidInputError(f"--mesh must be an even number of points, got {mesh}.")
+    return mesh
+
+
+def parse_x0(text: str | None, system) -> np.ndarray | None:
+    """``--x0 v1,v2,…``: one finite number per state, in state order."""
+    if text is None:
+        return None
+    expected = f"{system.n_states} comma-separated numbers (states {', '.join(system.states)})"
+    try:
+        values = [float(v) for v in text.split(",")]
+    except ValueError:
+        raise BifidInputError(f"--x0 expects {expected}; got {text[:80]!r}.") from None
+    if len(values) != system.n_states:
+        raise BifidInputError(f"--x0 expects {expected}; got {len(values)} values.")
+    if not all(math.isfinite(v) for v in values):
+        raise BifidInputError(f"--x0 values must be finite, got {text[:80]!r}.")
+    return np.array(values)
+
+
+# --------------------------------------------------------------------------- output
+def _unit(system, name: str) -> str:
+    return next((p.unit for p in system.parameters if p.name == name), "")
+
+
+def _caught(caught: list[warnings.WarningMessage]) -> list[str]:
+    out = []
+    for w in caught:
+        text = str(w.message)
+        if text not in out:
+            out.append(text)
+            print(f"bifid: warning: {text}", file=sys.stderr)
+    return out
+
+
+def _candidates_line(diagram) -> str:
+    cands = [c for b in diagram.branches for c in b.candidates] + list(diagram.candidates)
+    if not cands:
+        return ""
+    shown = "; ".join(f"{c.kind} in [{c.bracket[0]:.6g}, {c.bracket[1]:.6g}]" for c in cands[:5])
+    more = f" and {len(cands) - 5} more" if len(cands) > 5 else ""
+    return f"\ncandidates (detected, not verified): {shown}{more}"
+
+
+def _outputs(diagram, system, plot: Path | None, out: Path | None, payload: dict,
+             **plot_kw: Any) -> None:
+    if plot is not None:
+        from bifid.report.plots import plot_diagram, save_figure
+
+        save_figure(plot_diagram(diagram, labels=[""], **plot_kw), plot)
+        payload["plot"] = str(plot)
+    if out is not None:
+        from bifid.continuation._export import save_branch_dataset
+
+        data = [b for b in diagram.branches if b.kind != "equilibrium" and len(b)]
+        if data:
+            save_branch_dataset(data, system, out, settings=diagram.settings)
+            payload["out"] = str(out)
+        else:
+            payload["warnings"].append(f"no periodic orbits: nothing was saved to {out}")
+            print(f"bifid: warning: no periodic orbits: nothing was saved to {out}",
+                  file=sys.stderr)
+
+
+def _finish(diagram, payload: dict, json_out: bool, summary: str) -> None:
     if json_out:
         emit_json(payload)
     else:
-        print(summary)
-    if failed:
-        print(f"bifid: error: continuation incomplete: {failed[0].message}", file=sys.stderr)
+        print(summary + _candidates_line(diagram))
+    if not diagram.complete:
+        print(f"bifid: error: continuation incomplete ({diagram.status}): {diagram.message}",
+              file=sys.stderr)
         raise typer.Exit(EXIT_NUMERICAL)
 
 
-@app.command("systems")
-def systems_cmd(json_out: JsonOpt = False) -> None:
-    """List the registered systems with their states and parameters."""
-    with user_errors():
-        from bifid.systems import get_system, list_systems
-
-        entries = [get_system(n).to_json() for n in list_systems()]
-        if json_out:
-            emit_json({"systems": entries})
-            return
-        for e in entries:
-            params = ", ".join(f"{p['name']}={p['default']:g}" for p in e["parameters"])
-            print(f"{e['name']:12s} {e['kind']:10s} states: {', '.join(e['states'])}")
-            print(f"{'':12s} parameters: {params}")
+# ------------------------------------------------------------------------- continue
+def _located(sp) -> str:
+    """A located parameter to 10 digits, without digits below its precision."""
+    prec = sp.precision if math.isfinite(sp.precision) else 0.0
+    return "0" if abs(sp.param) <= prec else f"{sp.param:.10g}"
 
 
-def _orbit_json(system, br) -> list[dict[str, Any]]:
-    out = []
-    for i in range(len(br)):
-        out.append(
-            {
-                "param": br.params[i],
-                "period": br.data["period"][i],
-                "stable": bool(br.stable[i]),
-                "floquet_max": br.data["floquet_max"][i],
-                "amplitude": dict(zip(system.states, br.data["amplitude"][i], strict=True)),
-                # about the orbit's mean (what a rig with offsets removed measures)
-                "amplitude_centred": dict(zip(system.states, br.data["amplitude_centred"][i],
-                                              strict=True)),
-            }
-        )
-    return out
+def _continue_summary(diagram, name: str, param: str) -> str:
+    hopf = ", ".join(f"{_located(h)} ({h.data['criticality']}, ω = {h.data['omega']:.6g})"
+                     for h in diagram.special("hopf")) or "none"
+    eq_folds = [sp for b in diagram.of_kind("equilibrium") for sp in b.special("fold")]
+    folds = ", ".join(_located(sp) for sp in eq_folds) or "none"
+    cfolds = ", ".join(_located(sp) for sp in diagram.special("cycle_fold")) or "none"
+    n_orbits = sum(len(b) for b in diagram.branches if b.kind != "equilibrium")
+    return (f"{name}: Hopf at {param} = {hopf}; folds at {folds}; cycle folds at {cfolds}; "
+            f"{n_orbits} orbits")
 
 
 @app.command("continue")
 def continue_cmd(
-    system_name: Annotated[str, typer.Argument(metavar="SYSTEM", help="Registered system.")],
+    system_name: Annotated[str, typer.Argument(metavar="SYSTEM", help="System name or file.")],
     param: Annotated[str | None, typer.Option("--param", help="Continuation parameter.")] = None,
     prange: Annotated[
-        tuple[float, float] | None, typer.Option("--range", help="Parameter range A B.")
+        tuple[float, float] | None,
+        typer.Option("--range", help="Parameter range A B; the run starts at A."),
+    ] = None,
+    x0: Annotated[
+        str | None,
+        typer.Option("--x0", help="Guess of the equilibrium at A: v1,v2,… in state order."),
     ] = None,
     mesh: MeshOpt = 64,
     sets: SetOpt = None,
     plot: PlotOpt = None,
     out: OutOpt = None,
-    max_steps: Annotated[int, typer.Option("--max-steps", help="Points per branch.")] = 600,
+    max_steps: Annotated[int, typer.Option("--max-steps", help="Points per branch.")] = 1000,
+    orbits: Annotated[
+        bool, typer.Option("--orbits/--no-orbits", help="Continue the orbits of every Hopf point.")
+    ] = True,
+    force: ForceOpt = False,
     json_out: JsonOpt = False,
-    quiet: Annotated[bool, typer.Option("--quiet", help="No progress display.")] = False,
+    quiet: QuietOpt = False,
 ) -> None:
-    """Equilibria over a range, their Hopf points, and the periodic orbits born there."""
+    """Equilibria over a range, their Hopf points and folds, and the periodic orbits born
+    at every Hopf point."""
     with user_errors():
-        from bifid.continuation import ContinuationOptions, continue_from_hopf
+        check_outputs(out=out, plot=plot, force=force)
+        from bifid.continuation import bifurcation_diagram
 
         system, p = _system_and_params(system_name, sets)
         if system.kind != "autonomous":
@@ -152,231 +225,165 @@ def continue_cmd(
         system.index(param)
         if prange is None:
             raise BifidInputError("--range A B is required.")
-        lo, hi = sorted(finite_range("--range", *prange))
-        orbit_opts = ContinuationOptions(
-            ds=1e-3, ds_max=0.25, ds_min=1e-9, p_min=lo, p_max=hi, max_steps=max_steps
-        )
-        with _Progress(f"{system_name}: orbits in {param}", quiet) as progress, \
+        a, b = finite_range("--range", *prange)
+        x0v = parse_x0(x0, system)
+        _check_mesh(mesh)
+        option_value("--max-steps", max_steps, ge=1, integer=True)
+        settings = run_info("continue", system=system_name, param=param, range=[a, b],
+                            x0=None if x0v is None else x0v.tolist(), mesh=mesh,
+                            max_steps=max_steps, orbits=orbits,
+                            parameters=system.param_dict(p))
+        with _Progress(f"{system_name}: continuation in {param}", quiet) as progress, \
                 warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            eq, branches = continue_from_hopf(
-                system, param, lo, hi, p=p, n_mesh=mesh, orbit_options=orbit_opts,
-                progress=progress,
-            )
-        for w in caught:
-            print(f"bifid: warning: {w.message}", file=sys.stderr)
-        hopfs = eq.special("hopf")
-        payload: dict[str, Any] = {
-            "system": system_name,
-            "param": param,
-            "hopf": [
-                {"param": h.param, "omega": h.data["omega"], "lyapunov": h.data["lyapunov"],
-                 "criticality": h.data["criticality"], "precision": h.precision}
-                for h in hopfs
-            ],
-            "cycle_folds": [
-                {"param": sp.param, "period": sp.data["period"],
-                 "amplitude": dict(zip(system.states, sp.data["amplitude"], strict=True))}
-                for br in branches for sp in br.special("cycle_fold")
-            ],
-            "secondary": [
-                {"kind": sp.kind, "param": sp.param, "bracket": list(sp.bracket)}
-                for br in branches for sp in br.special_points
-                if sp.kind in ("period_doubling", "torus", "branch_point")
-            ],
-            "orbits": [o for br in branches for o in _orbit_json(system, br)],
-            "warnings": [str(w.message) for w in caught],
-            "settings": run_info("continue", system=system_name, param=param, range=[lo, hi],
-                                 mesh=mesh, parameters=system.param_dict(p)),
-        }
-        if plot is not None:
-            from bifid.report.plots import bifurcation_diagram, save_figure
-
-            shown = [s for s in system.states if not s.endswith("d")][:2] or [system.states[0]]
-            units = {s: "" for s in shown}
-            fig = bifurcation_diagram(eq, branches, shown, title=f"{system_name}: periodic orbits",
-                                      units=units, param_unit=_unit(system, param))
-            save_figure(fig, plot)
-            payload["plot"] = str(plot)
-        if out is not None:
-            from bifid.continuation._export import save_branch_dataset
-
-            save_branch_dataset(branches, system, out, settings=payload["settings"])
-            payload["out"] = str(out)
-        folds = ", ".join(f"{c['param']:.6g}" for c in payload["cycle_folds"]) or "none"
-        summary = (
-            f"{system_name}: Hopf at {param} = "
-            + ", ".join(f"{h['param']:.10g} ({h['criticality']}, ω = {h['omega']:.6g})"
-                        for h in payload["hopf"])
-            + f"; cycle folds at {folds}; {len(payload['orbits'])} orbits"
-        )
-        _finish(payload, branches, json_out, summary)
+            diagram = bifurcation_diagram(system, param, a, b, p=p, x0=x0v, n_mesh=mesh,
+                                          max_steps=max_steps, orbits=orbits, progress=progress,
+                                          settings=settings,
+                                          units={param: _unit(system, param)})
+        diagram.warnings.extend(_caught(caught))
+        payload = diagram.to_json()
+        shown = [s for s in system.states if not s.endswith("d")][:2] or [system.states[0]]
+        _outputs(diagram, system, plot, out, payload, signals=shown,
+                 title=f"{system_name}: bifurcation diagram in {param}")
+        _finish(diagram, payload, json_out, _continue_summary(diagram, system_name, param))
 
 
-def _unit(system, name: str) -> str:
-    return next((p.unit for p in system.parameters if p.name == name), "")
+# ---------------------------------------------------------------- forced responses
+def _forced_diagram(kind: str, br, system, settings: dict, caught, **info: Any):
+    from bifid.continuation._diagram import diagram_of
+
+    return diagram_of(kind, [br], settings=settings, warnings=_caught(caught),
+                      info={"observed": br.meta.get("observed", system.observed), **info})
 
 
-def _forced_points(br, key: str) -> list[dict[str, Any]]:
-    return [
-        {key: br.data[key][i], "amplitude": br.data["observed_amplitude"][i],
-         "phase": br.data["phase"][i], "stable": bool(br.stable[i])}
-        for i in range(len(br))
-    ]
+def _folds_text(diagram) -> str:
+    return ", ".join(f"{sp.param:.8g}" for sp in diagram.special("fold")) or "none"
 
 
 @app.command("frc")
 def frc_cmd(
     system_name: Annotated[str, typer.Argument(metavar="SYSTEM")],
-    forcing: Annotated[float, typer.Option("--forcing", help="Forcing amplitude F.")],
+    forcing: Annotated[float, typer.Option("--forcing", help="Forcing amplitude F (> 0).")],
     omega_range: Annotated[
-        tuple[float, float], typer.Option("--omega-range", help="Frequency range A B [rad/s].")
+        tuple[float, float],
+        typer.Option("--omega-range", help="Frequency range A B [rad/s], both > 0."),
     ],
     mesh: MeshOpt = 64,
-    observe: Annotated[str | None, typer.Option("--observe", help="Observed state.")] = None,
+    observe: ObserveOpt = None,
     sets: SetOpt = None,
     plot: PlotOpt = None,
     out: OutOpt = None,
+    force: ForceOpt = False,
     json_out: JsonOpt = False,
-    quiet: Annotated[bool, typer.Option("--quiet")] = False,
+    quiet: QuietOpt = False,
 ) -> None:
     """Frequency response curve at fixed forcing (continuation in Omega)."""
     with user_errors():
+        check_outputs(out=out, plot=plot, force=force)
         from bifid.continuation import frc
 
         system, p = _system_and_params(system_name, sets)
-        lo, hi = finite_range("--omega-range", *omega_range)
-        finite_range("--forcing", forcing, forcing + 1.0)
+        lo, hi = finite_range("--omega-range", *omega_range, gt=0)
+        option_value("--forcing", forcing, gt=0)
+        _check_mesh(mesh)
         with _Progress(f"{system_name}: FRC", quiet) as progress, \
                 warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             br = frc(system, forcing, (lo, hi), p=p, n_mesh=mesh, observed=observe,
                      progress=progress)
-        for w in caught:
-            print(f"bifid: warning: {w.message}", file=sys.stderr)
-        amp = br.data["observed_amplitude"]
-        k = int(np.argmax(amp))
-        payload = {
-            "system": system_name,
-            "observed": br.meta["observed"],
-            "points": _forced_points(br, "omega"),
-            "folds": [{"omega": sp.param, "amplitude": sp.data["amplitude"]}
-                      for sp in br.special("fold")],
-            "peak": {"omega": br.data["omega"][k], "amplitude": amp[k]},
-            "warnings": [str(w.message) for w in caught],
-            "settings": run_info("frc", system=system_name, forcing=forcing, omega_range=[lo, hi],
-                                 mesh=mesh, parameters=system.param_dict(p)),
-        }
-        _forced_outputs(payload, [br], system, plot, out, "omega",
-                        f"{system_name}: FRC, F = {forcing:g}")
-        summary = (f"{system_name}: FRC at F = {forcing:g}: peak {amp[k]:.6g} at Ω = "
-                   f"{br.data['omega'][k]:.6g}; folds at Ω = "
-                   + (", ".join(f"{f['omega']:.8g}" for f in payload["folds"]) or "none"))
-        _finish(payload, [br], json_out, summary)
-
-
-def _forced_outputs(payload, branches, system, plot, out, xkey, title, backbone=None) -> None:
-    if plot is not None:
-        from bifid.report.plots import forced_diagram, save_figure
-
-        save_figure(forced_diagram(branches, xkey=xkey, title=title, backbone=backbone), plot)
-        payload["plot"] = str(plot)
-    if out is not None:
-        from bifid.continuation._export import save_branch_dataset
-
-        save_branch_dataset(branches or [backbone], system, out, settings=payload["settings"])
-        payload["out"] = str(out)
+        settings = run_info("frc", system=system_name, forcing=forcing, omega_range=[lo, hi],
+                            mesh=mesh, parameters=system.param_dict(p))
+        diagram = _forced_diagram("frc", br, system, settings, caught)
+        payload = diagram.to_json()
+        _outputs(diagram, system, plot, out, payload,
+                 title=f"{system_name}: FRC, F = {forcing:g}")
+        peak = payload.get("peak") or {}
+        summary = (f"{system_name}: FRC at F = {forcing:g}: peak {peak.get('amplitude', 0):.6g} "
+                   f"at Ω = {peak.get('omega', math.nan):.6g}; folds at Ω = "
+                   + _folds_text(diagram))
+        _finish(diagram, payload, json_out, summary)
 
 
 @app.command("scurve")
 def scurve_cmd(
     system_name: Annotated[str, typer.Argument(metavar="SYSTEM")],
-    omega: Annotated[float, typer.Option("--omega", help="Forcing frequency [rad/s].")],
+    omega: Annotated[float, typer.Option("--omega", help="Forcing frequency [rad/s] (> 0).")],
     forcing_range: Annotated[
-        tuple[float, float], typer.Option("--forcing-range", help="Forcing range A B.")
+        tuple[float, float], typer.Option("--forcing-range", help="Forcing range A B (>= 0).")
     ],
     mesh: MeshOpt = 64,
-    observe: Annotated[str | None, typer.Option("--observe")] = None,
+    observe: ObserveOpt = None,
     sets: SetOpt = None,
     plot: PlotOpt = None,
     out: OutOpt = None,
+    force: ForceOpt = False,
     json_out: JsonOpt = False,
-    quiet: Annotated[bool, typer.Option("--quiet")] = False,
+    quiet: QuietOpt = False,
 ) -> None:
     """S-curve at fixed forcing frequency (continuation in F)."""
     with user_errors():
+        check_outputs(out=out, plot=plot, force=force)
         from bifid.continuation import scurve
 
         system, p = _system_and_params(system_name, sets)
-        lo, hi = finite_range("--forcing-range", *forcing_range)
-        finite_range("--omega", omega, omega + 1.0)
+        lo, hi = finite_range("--forcing-range", *forcing_range, ge=0)
+        option_value("--omega", omega, gt=0)
+        _check_mesh(mesh)
         with _Progress(f"{system_name}: S-curve", quiet) as progress, \
                 warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             br = scurve(system, omega, (lo, hi), p=p, n_mesh=mesh, observed=observe,
                         progress=progress)
-        for w in caught:
-            print(f"bifid: warning: {w.message}", file=sys.stderr)
-        payload = {
-            "system": system_name,
-            "observed": br.meta["observed"],
-            "points": _forced_points(br, "forcing"),
-            "folds": [{"forcing": sp.param, "amplitude": sp.data["amplitude"]}
-                      for sp in br.special("fold")],
-            "warnings": [str(w.message) for w in caught],
-            "settings": run_info("scurve", system=system_name, omega=omega,
-                                 forcing_range=[lo, hi], mesh=mesh,
-                                 parameters=system.param_dict(p)),
-        }
-        _forced_outputs(payload, [br], system, plot, out, "forcing",
-                        f"{system_name}: S-curve, Ω = {omega:g}")
+        settings = run_info("scurve", system=system_name, omega=omega,
+                            forcing_range=[lo, hi], mesh=mesh, parameters=system.param_dict(p))
+        diagram = _forced_diagram("scurve", br, system, settings, caught)
+        payload = diagram.to_json()
+        _outputs(diagram, system, plot, out, payload,
+                 title=f"{system_name}: S-curve, Ω = {omega:g}")
         summary = (f"{system_name}: S-curve at Ω = {omega:g}: {len(br)} points; folds at F = "
-                   + (", ".join(f"{f['forcing']:.8g}" for f in payload["folds"]) or "none"))
-        _finish(payload, [br], json_out, summary)
+                   + _folds_text(diagram))
+        _finish(diagram, payload, json_out, summary)
 
 
 @app.command("backbone")
 def backbone_cmd(
     system_name: Annotated[str, typer.Argument(metavar="SYSTEM")],
     amplitude_range: Annotated[
-        tuple[float, float], typer.Option("--amplitude-range", help="Amplitude range A B.")
+        tuple[float, float],
+        typer.Option("--amplitude-range", help="Amplitude range A B (both > 0)."),
     ],
     mode: Annotated[int, typer.Option("--mode", help="Linear mode (0 = lowest).")] = 0,
     mesh: MeshOpt = 64,
-    observe: Annotated[str | None, typer.Option("--observe")] = None,
+    observe: ObserveOpt = None,
     sets: SetOpt = None,
     plot: PlotOpt = None,
     out: OutOpt = None,
+    force: ForceOpt = False,
     json_out: JsonOpt = False,
-    quiet: Annotated[bool, typer.Option("--quiet")] = False,
+    quiet: QuietOpt = False,
 ) -> None:
     """Backbone curve: the locus of phase quadrature (response lags the force by π/2)."""
     with user_errors():
+        check_outputs(out=out, plot=plot, force=force)
         from bifid.continuation import backbone
 
         system, p = _system_and_params(system_name, sets)
-        lo, hi = finite_range("--amplitude-range", *amplitude_range)
+        lo, hi = finite_range("--amplitude-range", *amplitude_range, gt=0)
+        option_value("--mode", mode, ge=0, integer=True)
+        _check_mesh(mesh)
         with _Progress(f"{system_name}: backbone", quiet) as progress, \
                 warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             br = backbone(system, (lo, hi), p=p, n_mesh=mesh, mode=mode, observed=observe,
                           progress=progress)
-        for w in caught:
-            print(f"bifid: warning: {w.message}", file=sys.stderr)
-        payload = {
-            "system": system_name,
-            "observed": br.meta["observed"],
-            "points": [{"amplitude": br.data["observed_amplitude"][i],
-                        "omega": br.data["omega"][i], "forcing": br.data["forcing"][i]}
-                       for i in range(len(br))],
-            "linear_frequency": br.meta["linear_frequency"],
-            "warnings": [str(w.message) for w in caught],
-            "settings": run_info("backbone", system=system_name, amplitude_range=[lo, hi],
-                                 mode=mode, mesh=mesh, parameters=system.param_dict(p)),
-        }
-        _forced_outputs(payload, [], system, plot, out, "omega",
-                        f"{system_name}: backbone", backbone=br)
-        summary = (f"{system_name}: backbone from Ω = {br.data['omega'][0]:.6g} to "
-                   f"{br.data['omega'][-1]:.6g} over amplitude {lo:g}..{hi:g} "
-                   f"({len(br)} points)")
-        _finish(payload, [br], json_out, summary)
+        settings = run_info("backbone", system=system_name, amplitude_range=[lo, hi],
+                            mode=mode, mesh=mesh, parameters=system.param_dict(p))
+        diagram = _forced_diagram("backbone", br, system, settings, caught,
+                                  linear_frequency=br.meta.get("linear_frequency"))
+        payload = diagram.to_json()
+        _outputs(diagram, system, plot, out, payload, title=f"{system_name}: backbone")
+        om = br.data.get("omega") if len(br) else None
+        om = np.array([math.nan]) if om is None else om
+        summary = (f"{system_name}: backbone from Ω = {om[0]:.6g} to {om[-1]:.6g} over "
+                   f"amplitude {lo:g}..{hi:g} ({len(br)} points)")
+        _finish(diagram, payload, json_out, summary)

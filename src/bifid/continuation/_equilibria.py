@@ -1,26 +1,22 @@
-"""Equilibria in one parameter: continuation, stability, Hopf and fold points.
+"""Equilibria in one parameter: continuation, stability, Hopf points, folds, branch points.
 
-Hopf points are detected by a change in the number of unstable complex eigenvalue
-pairs and located by Newton's method on the standard defining system (Kuznetsov,
-*Elements of Applied Bifurcation Theory*, §10.2)
+The branch ``f(x, lambda) = 0`` is followed by pseudo-arclength continuation
+(``_palc``). Special points are found by test functions between consecutive points and
+reported only once located and verified (``_verify``):
 
-.. math::
-
-    f(x, \\lambda) = 0,\\quad J v_r + \\omega v_i = 0,\\quad J v_i - \\omega v_r = 0,\\quad
-    \\langle g, v\\rangle = 1,
-
-with ``v = v_r + i v_i`` the critical eigenvector (``J v = i omega v``) and ``g`` the
-eigenvector guess; it converges quadratically, so the parameter is located to
-round-off (≈1e-12). The first Lyapunov coefficient uses Kuznetsov's formula (eq. 3.20
-there) with JAX derivatives:
-
-.. math::
-
-    l_1 = \\frac{1}{2\\omega}\\,\\mathrm{Re}\\Big[\\langle p, C(q,q,\\bar q)\\rangle
-        - 2\\langle p, B(q, J^{-1}B(q,\\bar q))\\rangle
-        + \\langle p, B(\\bar q, (2i\\omega I - J)^{-1} B(q,q))\\rangle\\Big],
-
-``J q = i omega q``, ``J^T p = -i omega p``, ``<p, q> = 1``. ``l1 > 0``: subcritical.
+* **Hopf** — the eigenvalues of ``J = f_x`` at the two points are matched (assignment on
+  their distances, so each eigenvalue is followed continuously) and an eigenvalue whose
+  real part changes sign while it is *complex at both ends* marks a Hopf crossing. A
+  complex pair that collides on the real axis (complex-to-real) and a neutral saddle
+  (``±mu`` real) change no real part's sign, so they are never candidates. Where the
+  matching is ambiguous (a crossing next to a collision, or a count of unstable
+  eigenvalues that the matching does not explain) the interval is bisected on the branch
+  (up to ``MAX_BISECTIONS`` times). The crossing is then located by Newton on the Hopf
+  defining system and verified (``_hopf``).
+* **Fold** — the parameter component of the tangent changes sign (driver), located by a
+  secant search and verified (``_folds``).
+* **Branch point** — ``det [G_y; t^T]`` changes sign (driver); flagged as a candidate
+  (branch points are not located).
 """
 
 from __future__ import annotations
@@ -31,18 +27,23 @@ from collections.abc import Callable
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.optimize import linear_sum_assignment
 
 from bifid.continuation._branch import Branch, SpecialPoint
+from bifid.continuation._folds import report_folds
+from bifid.continuation._hopf import add_lyapunov, with_param
 from bifid.continuation._options import ContinuationOptions
 from bifid.continuation._palc import ZeroProblem, correct, palc
+from bifid.continuation._verify import Findings
 from bifid.errors import BifidInputError, ConvergenceError
 from bifid.systems import System
 
 Array = jnp.ndarray
 
-
-def _with_param(p: Array, idx: Array, lam: Array) -> Array:
-    return p.at[idx].set(lam)
+#: bisections of a branch interval whose eigenvalue crossings are ambiguous
+MAX_BISECTIONS = 8
+#: an eigenvalue is complex when |Im| exceeds this fraction of the spectral scale
+COMPLEX_TOL = 1e-10
 
 
 @functools.lru_cache(maxsize=32)
@@ -50,196 +51,9 @@ def equilibrium_problem(field: Callable) -> ZeroProblem:
     """Zero problem ``f(x, p[idx] = lambda) = 0`` with ``y = [x, lambda]``."""
 
     def residual(y, args):
-        return field(y[:-1], _with_param(args["p"], args["idx"], y[-1]))
+        return field(y[:-1], with_param(args["p"], args["idx"], y[-1]))
 
     return ZeroProblem(residual=residual, param_index=-1)
-
-
-@functools.lru_cache(maxsize=32)
-def _hopf_kernels(field: Callable):
-    def jac(x, p):
-        return jax.jacfwd(field)(x, p)
-
-    def hopf_residual(z, args):
-        n = args["g_r"].shape[0]
-        x, lam, om = z[:n], z[n], z[n + 1]
-        vr, vi = z[n + 2 : 2 * n + 2], z[2 * n + 2 :]
-        p = _with_param(args["p"], args["idx"], lam)
-        J = jac(x, p)
-        gr, gi = args["g_r"], args["g_i"]
-        return jnp.concatenate(
-            [
-                field(x, p),
-                J @ vr + om * vi,
-                J @ vi - om * vr,
-                jnp.stack([gr @ vr + gi @ vi - 1.0, gr @ vi - gi @ vr]),
-            ]
-        )
-
-    @jax.jit
-    def newton(z, args):
-        def body(state):
-            z, _, it = state
-            dz = jnp.linalg.solve(jax.jacfwd(hopf_residual)(z, args), -hopf_residual(z, args))
-            return z + dz, jnp.max(jnp.abs(dz)), it + 1
-
-        def cond(state):
-            _, err, it = state
-            return (it < 30) & (err > 1e-13) & jnp.isfinite(err)
-
-        z, err, _it = jax.lax.while_loop(cond, body, (z, jnp.asarray(1e300), 0))
-        return z, err, jnp.max(jnp.abs(hopf_residual(z, args)))
-
-    return jax.jit(jac), newton
-
-
-@functools.lru_cache(maxsize=32)
-def _multilinear(field: Callable):
-    """Jitted second and third derivatives ``B(x0,p;u,v)``, ``C(x0,p;u,v,w)`` of ``field``."""
-
-    def dir1(x, p, u):
-        return jax.jvp(lambda y: field(y, p), (x,), (u,))[1]
-
-    def B(x0, p, u, v):
-        return jax.jvp(lambda x: dir1(x, p, u), (x0,), (v,))[1]
-
-    def C(x0, p, u, v, w):
-        return jax.jvp(lambda x: B(x, p, u, v), (x0,), (w,))[1]
-
-    return jax.jit(B), jax.jit(C)
-
-
-def _complex_B(B, u, v):
-    ur, ui, vr, vi = u.real, u.imag, v.real, v.imag
-    re = B(ur, vr) - B(ui, vi)
-    im = B(ur, vi) + B(ui, vr)
-    return np.asarray(re) + 1j * np.asarray(im)
-
-
-def _complex_C(C, u, v, w):
-    parts = [(u.real, 1.0), (u.imag, 1j)]
-    total = 0j
-    for a, ca in parts:
-        for b, cb in [(v.real, 1.0), (v.imag, 1j)]:
-            for c, cc in [(w.real, 1.0), (w.imag, 1j)]:
-                total = total + ca * cb * cc * np.asarray(C(a, b, c))
-    return total
-
-
-def first_lyapunov_coefficient(field: Callable, x: Array, p: Array, omega: float) -> float:
-    """First Lyapunov coefficient ``l1`` at a Hopf point (Kuznetsov normalisation).
-
-    Parameters
-    ----------
-    field : callable ``(x, p) -> dx``
-    x : array of shape (n,)
-        Equilibrium at the Hopf point.
-    p : array
-        Parameter vector at the Hopf point.
-    omega : float
-        Hopf angular frequency (> 0).
-
-    Returns
-    -------
-    float
-        ``l1``; positive means subcritical (unstable cycles born), negative supercritical.
-    """
-    x = jnp.asarray(x)
-    J = np.asarray(jax.jacfwd(field)(x, p))
-    n = J.shape[0]
-    w, V = np.linalg.eig(J)
-    q = V[:, int(np.argmin(np.abs(w - 1j * omega)))]
-    wl, W = np.linalg.eig(J.T)
-    pv = W[:, int(np.argmin(np.abs(wl + 1j * omega)))]
-    q = q / np.linalg.norm(q)
-    pv = pv / np.conj(np.vdot(pv, q))  # <p, q> = conj(p) . q = 1
-    Bj, Cj = _multilinear(field)
-
-    def B(u, v):
-        return Bj(x, p, jnp.asarray(u), jnp.asarray(v))
-
-    def C(u, v, w):
-        return Cj(x, p, jnp.asarray(u), jnp.asarray(v), jnp.asarray(w))
-
-    def inner(a, b):
-        return np.vdot(a, b)
-
-    Bqqb = _complex_B(B, q, np.conj(q)).real
-    Bqq = _complex_B(B, q, q)
-    h11 = np.linalg.solve(J, Bqqb)
-    h20 = np.linalg.solve(2j * omega * np.eye(n) - J, Bqq)
-    # l1 = Re[<p,C(q,q,qb)> - 2<p,B(q,J^{-1}B(q,qb))> + <p,B(qb,(2iw-J)^{-1}B(q,q))>]/(2w)
-    val = (
-        inner(pv, _complex_C(C, q, q, np.conj(q)))
-        - 2.0 * inner(pv, _complex_B(B, q, h11.astype(complex)))
-        + inner(pv, _complex_B(B, np.conj(q), h20))
-    )
-    return float(val.real / (2.0 * omega))
-
-
-def locate_hopf(
-    system: System,
-    param: str,
-    x_guess: np.ndarray,
-    lam_guess: float,
-    p: Array,
-    *,
-    omega_guess: float | None = None,
-) -> SpecialPoint:
-    """Locate a Hopf point by Newton's method on the defining system.
-
-    Raises
-    ------
-    ConvergenceError
-        If Newton does not converge.
-    """
-    idx = system.index(param)
-    jac, newton = _hopf_kernels(system.field)
-    p = jnp.asarray(p)
-    J = np.asarray(jac(jnp.asarray(x_guess), _with_param(p, idx, lam_guess)))
-    w, V = np.linalg.eig(J)
-    if omega_guess is None:
-        cand = np.where(np.abs(w.imag) > 1e-10, np.abs(w.real), np.inf)
-        k = int(np.argmin(cand))
-    else:
-        k = int(np.argmin(np.abs(w - 1j * omega_guess)))
-    lam_c, v = w[k], V[:, k]
-    if lam_c.imag < 0:
-        lam_c, v = np.conj(lam_c), np.conj(v)
-    g = v / np.linalg.norm(v)
-    vn = v / np.vdot(g, v)  # normalised so that <g, v> = 1
-    z0 = np.concatenate([x_guess, [lam_guess, lam_c.imag], vn.real, vn.imag])
-    args = {"p": p, "idx": jnp.asarray(idx), "g_r": jnp.asarray(g.real), "g_i": jnp.asarray(g.imag)}
-    z, err, res = newton(jnp.asarray(z0), args)
-    z = np.asarray(z)
-    n = len(x_guess)
-    if not (np.isfinite(float(err)) and float(res) < 1e-9):
-        raise ConvergenceError(
-            f"Hopf point of {system.name!r} near {param}={lam_guess:.6g} could not be located "
-            f"(residual {float(res):.1e})."
-        )
-    x, lam, om = z[:n], float(z[n]), float(abs(z[n + 1]))
-    q = z[n + 2 : 2 * n + 2] + 1j * z[2 * n + 2 :]
-    p_h = _with_param(p, idx, lam)
-    l1 = first_lyapunov_coefficient(system.field, jnp.asarray(x), p_h, om)
-    return SpecialPoint(
-        kind="hopf",
-        param=lam,
-        index=-1,
-        bracket=(lam, lam),
-        solution=x,
-        precision=float(err) + 1e-14,
-        status="converged",
-        data={
-            "omega": om,
-            "frequency_hz": om / (2 * np.pi),
-            "lyapunov": l1,
-            "criticality": "subcritical" if l1 > 0 else "supercritical",
-            "eigenvector": q,
-            "p": np.asarray(p_h),
-            "param_name": param,
-        },
-    )
 
 
 @functools.lru_cache(maxsize=32)
@@ -247,10 +61,191 @@ def _batched_jacobian(field: Callable) -> Callable:
     return jax.jit(jax.vmap(jax.jacfwd(field), in_axes=(0, 0)))
 
 
-def _unstable_counts(eigs: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    re = eigs.real
-    complex_ = np.abs(eigs.imag) > 1e-9
-    return np.sum((re > 0) & complex_, axis=1), np.sum((re > 0) & ~complex_, axis=1)
+@functools.lru_cache(maxsize=32)
+def _batched_residual(problem: ZeroProblem) -> Callable:
+    return jax.jit(jax.vmap(problem.residual, in_axes=(0, None)))
+
+
+def check_x0(system: System, x0: np.ndarray | None) -> np.ndarray:
+    """A starting state: ``n_states`` finite numbers (zeros when None).
+
+    Raises
+    ------
+    BifidInputError
+        On a wrong length or a value that is not finite.
+    """
+    if x0 is None:
+        return np.zeros(system.n_states)
+    try:
+        x = np.asarray(x0, dtype=float).reshape(-1)
+    except (TypeError, ValueError):
+        raise BifidInputError(f"x0 must be numbers, got {x0!r}.") from None
+    if x.shape[0] != system.n_states:
+        raise BifidInputError(
+            f"x0 must have {system.n_states} values (one per state: "
+            f"{', '.join(system.states)}); got {x.shape[0]}."
+        )
+    if not np.all(np.isfinite(x)):
+        raise BifidInputError(f"x0 must be finite numbers, got {x.tolist()}.")
+    return x
+
+
+def _check_field(system: System, x: np.ndarray, p: Array) -> None:
+    """The field evaluates at the start to ``n_states`` numbers (a user's field that
+    raises or returns the wrong shape is an input error, not a traceback)."""
+    try:
+        f = np.asarray(system.field(jnp.asarray(x), p))
+    except Exception as exc:  # any error of a user's function
+        raise BifidInputError(
+            f"the field of {system.name!r} fails at x0={x.tolist()}: "
+            f"{type(exc).__name__}: {str(exc).splitlines()[0] if str(exc) else ''}"
+        ) from None
+    if f.shape != (system.n_states,):
+        raise BifidInputError(
+            f"the field of {system.name!r} must return {system.n_states} values (one per "
+            f"state), got shape {f.shape}."
+        )
+
+
+def _eigenvalues(field: Callable, ys: np.ndarray, p: Array, idx: int) -> np.ndarray:
+    ps = np.repeat(np.asarray(p)[None, :], ys.shape[0], axis=0)
+    ps[:, idx] = ys[:, -1]
+    J = np.asarray(_batched_jacobian(field)(jnp.asarray(ys[:, :-1]), jnp.asarray(ps)))
+    if not np.all(np.isfinite(J)):
+        k = int(np.argmax(~np.all(np.isfinite(J), axis=(1, 2))))
+        raise ConvergenceError(f"the Jacobian is not finite at parameter {ys[k, -1]:.6g}")
+    return np.linalg.eigvals(J)
+
+
+def _classify(ea: np.ndarray, eb: np.ndarray) -> list[tuple[str, complex, complex]] | None:
+    """Eigenvalues that cross the imaginary axis between two points.
+
+    Returns ``("hopf", a, b)`` once per complex pair (its member with ``Im > 0``),
+    ``("real", a, b)`` for a real eigenvalue, ``("mixed", a, b)`` for one complex at one
+    end and real at the other; None when the matching does not explain the change in the
+    number of eigenvalues with positive real part.
+    """
+    scale = max(1.0, float(np.max(np.abs(ea))), float(np.max(np.abs(eb))))
+    rows, cols = linear_sum_assignment(np.abs(ea[:, None] - eb[None, :]))
+    out: list[tuple[str, complex, complex]] = []
+    signed = 0
+    for i, j in zip(rows, cols, strict=True):
+        a, b = complex(ea[i]), complex(eb[j])
+        if (a.real > 0) == (b.real > 0):
+            continue
+        signed += 1 if b.real > 0 else -1
+        ca, cb = abs(a.imag) > COMPLEX_TOL * scale, abs(b.imag) > COMPLEX_TOL * scale
+        if ca and cb:
+            if a.imag > 0:
+                out.append(("hopf", a, b))
+        else:
+            out.append(("real" if not (ca or cb) else "mixed", a, b))
+    if signed != int(np.sum(eb.real > 0)) - int(np.sum(ea.real > 0)):
+        return None
+    return out
+
+
+def _hopf_crossings(ya, yb, ea, eb, between, depth=0) -> list[tuple]:
+    """``(ya, yb, a, b, clear)`` for every Hopf crossing (``clear``) or ambiguous crossing
+    between two branch points, bisecting the interval where the matching is ambiguous."""
+    found = _classify(ea, eb)
+    if found is not None and all(kind != "mixed" for kind, _, _ in found):
+        return [(ya, yb, a, b, True) for kind, a, b in found if kind == "hopf"]
+    ym = between(ya, yb) if depth < MAX_BISECTIONS else None
+    if ym is None:
+        mixed = [(a, b) for kind, a, b in (found or []) if kind != "real"]
+        if found is None:  # take the complex eigenvalue nearest the axis at either end
+            k = int(np.argmin(np.where(np.abs(ea.imag) > 0, np.abs(ea.real), np.inf)))
+            mixed = [(complex(ea[k]), complex(eb[int(np.argmin(np.abs(eb - ea[k])))]))]
+        return [(ya, yb, a, b, False) for a, b in mixed if max(abs(a.imag), abs(b.imag)) > 0]
+    em = between.eigenvalues(ym)
+    return (_hopf_crossings(ya, ym, ea, em, between, depth + 1)
+            + _hopf_crossings(ym, yb, em, eb, between, depth + 1))
+
+
+class _Between:
+    """Corrected branch points between two points: ``y(s)`` on the hyperplane through
+    ``ya + s (yb - ya)`` normal to ``yb - ya``."""
+
+    def __init__(self, system: System, problem: ZeroProblem, args: dict, idx: int,
+                 tol: float) -> None:
+        self.system, self.problem, self.args, self.idx, self.tol = system, problem, args, idx, tol
+
+    def at(self, ya: np.ndarray, yb: np.ndarray, s: float) -> np.ndarray | None:
+        row = yb - ya
+        y_pred = ya + s * row
+        y, ok, _, _ = correct(self.problem, y_pred, row, float(row @ y_pred), self.args,
+                              tol=self.tol)
+        return y if ok else None
+
+    def __call__(self, ya: np.ndarray, yb: np.ndarray) -> np.ndarray | None:
+        return self.at(ya, yb, 0.5)
+
+    def eigenvalues(self, y: np.ndarray) -> np.ndarray:
+        return _eigenvalues(self.system.field, y[None, :], self.args["p"], self.idx)[0]
+
+
+def _locate_crossing(between: _Between, param: str, ya, yb, a: complex, b: complex
+                     ) -> SpecialPoint:
+    """The zero of the crossing eigenvalue's real part on the branch between ``ya`` and
+    ``yb``: an Illinois (secant) search on ``s`` in ``y(s)``, following the eigenvalue to
+    its nearest neighbour at each new point. Only first derivatives of the field are
+    needed, and the point cannot leave the branch."""
+    sa, fa, sb, fb, lam = 0.0, a.real, 1.0, b.real, a
+    y_best, best = ya, a
+    scale = max(1.0, abs(a), abs(b))
+    for _ in range(80):
+        s = (sa * fb - sb * fa) / (fb - fa) if fb != fa else 0.5 * (sa + sb)
+        y = between.at(ya, yb, s)
+        if y is None:
+            raise ConvergenceError(f"the branch could not be corrected near {param}="
+                                   f"{float((ya + s * (yb - ya))[-1]):.8g}")
+        e = between.eigenvalues(y)
+        lam = complex(e[int(np.argmin(np.abs(e - lam)))])
+        y_best, best = y, lam
+        if (lam.real > 0) == (fb > 0):
+            sb, fb = s, lam.real
+            fa = fa / 2.0  # Illinois: keep the bracket shrinking from both sides
+        else:
+            sa, fa = s, lam.real
+            fb = fb / 2.0
+        if abs(lam.real) <= 1e-15 * scale or abs(sb - sa) <= 1e-15:
+            break
+    J = np.asarray(_batched_jacobian(between.system.field)(
+        jnp.asarray(y_best[None, :-1]),
+        jnp.asarray(between.args["p"]).at[between.idx].set(y_best[-1])[None, :]))[0]
+    w, V = np.linalg.eig(J)
+    k = int(np.argmin(np.abs(w - best)))
+    q, om = V[:, k], float(w[k].imag)
+    if om < 0:
+        q, om = np.conj(q), -om
+    p_h = np.asarray(between.args["p"], dtype=float).copy()
+    p_h[between.idx] = y_best[-1]
+    lo, hi = between.at(ya, yb, sa), between.at(ya, yb, sb)
+    prec = abs(float(hi[-1] - lo[-1])) if lo is not None and hi is not None else abs(sb - sa)
+    return SpecialPoint(
+        kind="hopf", param=float(y_best[-1]), index=-1, bracket=(float(ya[-1]), float(yb[-1])),
+        solution=np.asarray(y_best[:-1]), precision=prec + 1e-15 * max(1.0, abs(y_best[-1])),
+        data={"omega": om, "frequency_hz": om / (2 * np.pi), "eigenvector": q, "p": p_h,
+              "param_name": param},
+    )
+
+
+def _find_hopf(findings, system, param, ys, eigs, between) -> None:
+    context = {"field": system.field}
+    for i in range(len(ys) - 1):
+        for ya, yb, a, b, clear in _hopf_crossings(ys[i], ys[i + 1], eigs[i], eigs[i + 1],
+                                                   between):
+            result = findings.confirm(
+                "hopf", (float(ys[i][-1]), float(ys[i + 1][-1])),
+                lambda ya=ya, yb=yb, a=a, b=b: _locate_crossing(between, param, ya, yb, a, b),
+                context=context, index=i, slack=float(np.max(np.abs(ys[i + 1] - ys[i]))),
+            )
+            if isinstance(result, SpecialPoint):
+                add_lyapunov(system.field, result)
+            elif not clear:
+                result.reason = ("an eigenvalue crossed the imaginary axis next to a collision "
+                                 f"of eigenvalues; {result.reason}")
 
 
 def equilibria(
@@ -277,18 +272,22 @@ def equilibria(
     start : float, optional
         Starting parameter value.
     options : ContinuationOptions
-        Bounds ``p_min``/``p_max`` and ``direction`` set the range.
+        Bounds ``p_min``/``p_max`` and ``direction`` set the range. The arclength steps
+        ``ds`` are measured with the states relative to the size of the starting
+        equilibrium (``max(1, max|x|)``), so they are in the parameter's units wherever the
+        states change little.
 
     Returns
     -------
     Branch
-        ``kind="equilibrium"``; ``data["eigenvalues"]`` (n_points, n); special points
-        "hopf" (located, with ``omega``, ``lyapunov``, ``criticality``) and "fold".
+        ``kind="equilibrium"``; ``data["eigenvalues"]`` (n_points, n); verified special
+        points "hopf" (with ``omega``, ``lyapunov``, ``criticality``) and "fold";
+        ``candidates`` for what was detected but not verified (branch points among them).
 
     Raises
     ------
     BifidInputError
-        For a forced system or an unknown parameter.
+        For a forced system, an unknown parameter or a bad ``x0``.
     ConvergenceError
         If no equilibrium can be found at the start.
     """
@@ -301,76 +300,51 @@ def equilibria(
     idx = system.index(param)
     p = system.param_vector() if p is None else jnp.asarray(p, dtype=jnp.float64)
     lam0 = float(p[idx]) if start is None else float(start)
-    x0 = np.zeros(system.n_states) if x0 is None else np.asarray(x0, dtype=float)
+    x0 = check_x0(system, x0)
+    _check_field(system, x0, p.at[idx].set(lam0))
     problem = equilibrium_problem(system.field)
-    args = {"p": p, "idx": jnp.asarray(idx), "param_name": param}
-    args_j = {k: v for k, v in args.items() if k != "param_name"}
+    args = {"p": p, "idx": jnp.asarray(idx)}
     y0 = np.concatenate([x0, [lam0]])
     e = np.zeros_like(y0)
     e[-1] = 1.0
-    y_c, ok, _, res = correct(problem, y0, e, lam0, args_j, tol=options.newton_tol)
+    y_c, ok, _, res = correct(problem, y0, e, lam0, args, tol=options.newton_tol, max_iter=30)
     if not ok:
         raise ConvergenceError(
-            f"No equilibrium of {system.name!r} found near the start {param}={lam0:.6g} "
-            f"(Newton residual {res:.1e}); pass a better x0."
+            f"No equilibrium of {system.name!r} found near the start {param}={lam0:.6g} from "
+            f"x0={x0.tolist()} (Newton residual {res:.1e}); pass a better starting guess x0."
         )
     t0 = np.zeros_like(y0)
     t0[-1] = float(options.direction)
-    result = palc(problem, y_c, t0, args_j, options, progress=progress, correct_start=False)
-    if result.ys.shape[0] == 0:
-        raise ConvergenceError(result.message)
+    # arclength: the states relative to the size of the starting equilibrium (at least 1)
+    scale = max(1.0, float(np.max(np.abs(y_c[:-1]))))
+    weights = np.concatenate([np.full(system.n_states, scale**-2), [1.0]])
+    result = palc(problem, y_c, t0, args, options, progress=progress, correct_start=False,
+                  param_name=param, weights=weights)
     ys = result.ys
-    jac = _batched_jacobian(system.field)
-    ps = np.repeat(np.asarray(p)[None, :], ys.shape[0], axis=0)
-    ps[:, idx] = ys[:, -1]
-    eigs = np.linalg.eigvals(np.asarray(jac(jnp.asarray(ys[:, :-1]), jnp.asarray(ps))))
-    n_cplx, n_real = _unstable_counts(eigs)
-    stable = (n_cplx + n_real) == 0
-    specials: list[SpecialPoint] = []
-    for i in range(len(ys) - 1):
-        if n_cplx[i] != n_cplx[i + 1]:
-            a, b = ys[i], ys[i + 1]
-            # linear interpolation of the critical real part gives the Newton guess
-            ra = _crit_re(eigs[i])
-            rb = _crit_re(eigs[i + 1])
-            s = ra / (ra - rb) if ra != rb else 0.5
-            guess = a + s * (b - a)
-            try:
-                sp = locate_hopf(system, param, guess[:-1], float(guess[-1]), p)
-            except ConvergenceError:
-                sp = SpecialPoint(
-                    kind="hopf", param=float(guess[-1]), index=i, bracket=(a[-1], b[-1]),
-                    solution=guess[:-1], status="guess",
-                    data={"omega": float(np.abs(eigs[i].imag).max()), "lyapunov": float("nan"),
-                          "criticality": "unknown"},
-                )
-            sp.index = i
-            sp.bracket = (float(a[-1]), float(b[-1]))
-            specials.append(sp)
-    for i, y_f, prec in result.folds:
-        specials.append(
-            SpecialPoint(kind="fold", param=float(y_f[-1]), index=i,
-                         bracket=(float(ys[i][-1]), float(ys[i + 1][-1])),
-                         solution=y_f[:-1], precision=prec, status="converged")
-        )
+    eigs = _eigenvalues(system.field, ys, p, idx)
+    params = ys[:, -1]
+    findings = Findings()
+    if options.detect_bifurcations:
+        _find_hopf(findings, system, param, ys, eigs,
+                   _Between(system, problem, args, idx, options.newton_tol))
+    if options.detect_folds:
+        report_folds(findings, result, params,
+                     lambda i, y_f, prec: SpecialPoint(kind="fold", param=float(y_f[-1]), index=i,
+                                                       bracket=(params[i], params[i + 1]),
+                                                       solution=y_f[:-1], precision=prec),
+                     {"problem": problem, "args": args})
     for i in result.branch_points:
-        specials.append(
-            SpecialPoint(kind="branch_point", param=float(0.5 * (ys[i][-1] + ys[i + 1][-1])),
-                         index=i, bracket=(float(ys[i][-1]), float(ys[i + 1][-1])),
-                         solution=ys[i][:-1], status="guess")
-        )
-    specials.sort(key=lambda s: s.index)
+        findings.flag("branch_point", (params[i], params[i + 1]),
+                      "det [G_y; t^T] changed sign: a branch point (branch points are flagged, "
+                      "not located)")
+    residual = np.max(np.abs(np.asarray(_batched_residual(problem)(jnp.asarray(ys), args))),
+                      axis=1)
     return Branch(
-        kind="equilibrium", system=system.name, param=param, params=ys[:, -1],
-        solutions=ys[:, :-1], stable=stable, special_points=specials,
+        kind="equilibrium", system=system.name, param=param, params=params,
+        solutions=ys[:, :-1], stable=np.all(eigs.real < 0, axis=1),
+        special_points=findings.sorted_points(),
         data={"eigenvalues": eigs, "state": ys[:, :-1]}, p=np.asarray(p),
         status=result.status, message=result.message, options=options,
         signals=tuple(system.states), meta={"states": list(system.states)},
+        verification={"residual": residual}, candidates=findings.candidates,
     )
-
-
-def _crit_re(eigs: np.ndarray) -> float:
-    cplx = eigs[np.abs(eigs.imag) > 1e-9]
-    if cplx.size == 0:
-        return 0.0
-    return float(cplx.real[np.argmin(np.abs(cplx.real))])

@@ -24,59 +24,52 @@ component; branch points are flagged by a sign change of ``det [G_y; t^T]``.
 
 from __future__ import annotations
 
-import abc
-import functools
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
 from typing import Any
 
-import jax
 import jax.numpy as jnp
 import numpy as np
-import scipy.linalg
 from threadpoolctl import threadpool_limits
 
+from bifid.continuation._correctors import (
+    AbstractCorrector,
+    Correction,
+    NewtonCorrector,
+    ZeroProblem,
+    correct,
+    tangent_at,
+)
 from bifid.continuation._options import ContinuationOptions
 from bifid.errors import BifidInputError
 
+__all__ = [
+    "AbstractCorrector",
+    "Continuation",
+    "ContinuationState",
+    "Correction",
+    "NewtonCorrector",
+    "PalcResult",
+    "Step",
+    "ZeroProblem",
+    "correct",
+    "palc",
+    "tangent_at",
+]
+
 Array = jnp.ndarray
-Residual = Callable[[Array, Any], Array]
-Jacobian = Callable[[Array, Any], Array]
-
-
-@dataclass(frozen=True, eq=False)
-class ZeroProblem:
-    """A zero problem for continuation.
-
-    Parameters
-    ----------
-    residual : callable ``(y, args) -> (N,)``
-        Pure JAX function of the unknowns ``y`` of shape ``(N+1,)`` and a pytree
-        ``args`` of arrays (changing ``args`` never triggers a re-compilation).
-    param_index : int
-        Component of ``y`` that is the continuation parameter.
-    jacobian : callable ``(y, args) -> (N, N+1)``, optional
-        Jacobian of ``residual``; defaults to ``jax.jacfwd``.
-    """
-
-    residual: Residual
-    param_index: int = -1
-    jacobian: Jacobian | None = None
-
-    def __hash__(self) -> int:
-        return hash((self.residual, self.param_index, self.jacobian))
-
-    def __eq__(self, other: object) -> bool:
-        return isinstance(other, ZeroProblem) and (
-            (self.residual, self.param_index, self.jacobian)
-            == (other.residual, other.param_index, other.jacobian)
-        )
 
 
 @dataclass
 class PalcResult:
-    """Raw output of :func:`palc`."""
+    """Raw output of :func:`palc`.
+
+    ``folds`` are ``(i, y, precision)``: a fold located between points ``i`` and ``i+1``
+    (not yet verified: see ``bifid.continuation._folds``); ``fold_failures`` the ``i``
+    where the parameter component of the tangent changed sign but the fold could not be
+    located; ``branch_points`` the ``i`` where ``det [G_y; t^T]`` changed sign.
+    """
 
     ys: np.ndarray
     tangents: np.ndarray
@@ -86,178 +79,7 @@ class PalcResult:
     status: str = "completed"  # one of bifid.continuation.END_REASONS
     message: str = ""
     args: Any = None
-
-
-@functools.lru_cache(maxsize=128)
-def _evaluator(problem: ZeroProblem) -> Callable:
-    """Jitted ``(y, args) -> (G(y), G_y(y))``, compiled once per problem."""
-    J = problem.jacobian if problem.jacobian is not None else jax.jacfwd(problem.residual)
-
-    @jax.jit
-    def both(y: Array, args: Any):
-        return problem.residual(y, args), J(y, args)
-
-    return both
-
-
-def _factor(Jm: np.ndarray, row: np.ndarray):
-    A = np.vstack([Jm, row[None, :]])
-    with np.errstate(all="ignore"):
-        lu, piv = scipy.linalg.lu_factor(A, check_finite=False)
-    return lu, piv
-
-
-def _det_sign(lu: np.ndarray, piv: np.ndarray) -> float:
-    swaps = np.count_nonzero(piv != np.arange(piv.shape[0]))
-    return float((-1) ** swaps * np.prod(np.sign(np.diag(lu))))
-
-
-@dataclass
-class Correction:
-    """Outcome of one corrector call.
-
-    Attributes
-    ----------
-    y : ndarray
-        The corrected point (or the last iterate when not converged).
-    converged : bool
-    iterations : int
-        Corrector iterations (for a measured problem: rig evaluations).
-    residual : float
-        Max-norm of ``G`` at ``y``.
-    info : dict
-        Anything the corrector wants recorded with the point (e.g. the measurement).
-    """
-
-    y: np.ndarray
-    converged: bool
-    iterations: int
-    residual: float
-    info: dict[str, Any] = field(default_factory=dict)
-
-
-class AbstractCorrector(abc.ABC):
-    """Solves the extended system ``[G(y); row . y - c] = 0`` near a prediction and
-    gives the tangent of the solution curve.
-
-    The predictor–corrector driver (:class:`Continuation`) only talks to a corrector, so
-    the same driver follows a model's branch with Newton and exact Jacobians
-    (:class:`NewtonCorrector`) and a rig's branch with a Broyden / secant corrector on a
-    measured residual (``bifid.cbc``). A corrector may keep state between calls (a
-    Jacobian estimate); :meth:`state` / :meth:`restore` make it persistable so that an
-    interrupted run continues exactly where it stopped.
-    """
-
-    @abc.abstractmethod
-    def correct(self, y_pred: np.ndarray, row: np.ndarray, c: float, args: Any) -> Correction:
-        """Correct ``y_pred`` onto ``G(y) = 0`` with ``row . y = c``."""
-
-    @abc.abstractmethod
-    def tangent(self, y: np.ndarray, t_prev: np.ndarray, weights: np.ndarray,
-                args: Any) -> tuple[np.ndarray, float]:
-        """Unit tangent at ``y`` (``||t||_W = 1``, ``(W t_prev) . t > 0``) and the sign of
-        ``det [G_y; (W t_prev)^T]`` (NaN when unknown)."""
-
-    def accept(self, correction: Correction) -> None:  # noqa: B027 - optional hook
-        """Called when the driver accepts ``correction`` as the next point."""
-
-    def state(self) -> dict[str, np.ndarray]:
-        """Arrays that :meth:`restore` needs to continue exactly (default: none)."""
-        return {}
-
-    def restore(self, state: dict[str, np.ndarray]) -> None:  # noqa: B027 - optional hook
-        """Inverse of :meth:`state`."""
-
-
-class NewtonCorrector(AbstractCorrector):
-    """Newton's method with the exact Jacobian of a :class:`ZeroProblem`.
-
-    The residual and Jacobian are jitted once per problem; the dense linear algebra runs
-    in SciPy (LAPACK LU), which for the few-hundred-unknown systems of collocation is
-    several times faster on CPU than inside XLA.
-    """
-
-    def __init__(self, problem: ZeroProblem, *, tol: float = 1e-10, max_iter: int = 10) -> None:
-        self.problem = problem
-        self.tol = float(tol)
-        self.max_iter = int(max_iter)
-        self._both = _evaluator(problem)
-
-    def evaluate(self, y: np.ndarray, args: Any) -> tuple[np.ndarray, np.ndarray]:
-        """``G(y)`` and ``G_y(y)`` as NumPy arrays."""
-        G, Jm = self._both(y, args)
-        return np.asarray(G), np.asarray(Jm)
-
-    def correct(self, y_pred: np.ndarray, row: np.ndarray, c: float, args: Any) -> Correction:
-        y = np.asarray(y_pred, dtype=float).copy()
-        row = np.asarray(row, dtype=float)
-        err = np.inf
-        it = 0
-        while it < self.max_iter:
-            G, Jm = self.evaluate(y, args)
-            r = np.concatenate([G, [row @ y - float(c)]])
-            if not np.all(np.isfinite(r)):
-                return Correction(y, False, it, np.inf)
-            lu, piv = _factor(Jm, row)
-            dy = scipy.linalg.lu_solve((lu, piv), -r, check_finite=False)
-            if not np.all(np.isfinite(dy)):
-                return Correction(y, False, it, np.inf)
-            y = y + dy
-            it += 1
-            err = float(np.max(np.abs(dy)))
-            if err <= self.tol:
-                break
-        G, _ = self._both(y, args)
-        res = float(np.max(np.abs(np.asarray(G))))
-        return Correction(y, bool(err <= self.tol and np.isfinite(res)), it, res)
-
-    def tangent(self, y, t_prev, weights, args):
-        # [G_y; (W t_prev)^T] t = [0; 1]
-        _, Jm = self.evaluate(np.asarray(y, dtype=float), args)
-        w = np.asarray(weights, dtype=float)
-        lu, piv = _factor(Jm, w * np.asarray(t_prev, dtype=float))
-        rhs = np.zeros(np.asarray(y).shape[0])
-        rhs[-1] = 1.0
-        t = scipy.linalg.lu_solve((lu, piv), rhs, check_finite=False)
-        t = t / np.sqrt(t @ (w * t))
-        return t, _det_sign(lu, piv)
-
-
-def correct(
-    problem: ZeroProblem,
-    y_guess: Array,
-    row: Array,
-    c: float,
-    args: Any,
-    *,
-    tol: float = 1e-10,
-    max_iter: int = 10,
-) -> tuple[np.ndarray, bool, int, float]:
-    """Newton on ``[G(y, args); row . y - c] = 0`` from ``y_guess``.
-
-    Returns
-    -------
-    y : ndarray
-    converged : bool
-    iterations : int
-    residual : float
-        Max-norm of ``G`` at the returned point.
-    """
-    corrector = NewtonCorrector(problem, tol=tol, max_iter=max_iter)
-    with threadpool_limits(1, user_api="blas"):
-        r = corrector.correct(np.asarray(y_guess, dtype=float), np.asarray(row, dtype=float),
-                              float(c), args)
-    return np.asarray(r.y), bool(r.converged), int(r.iterations), float(r.residual)
-
-
-def tangent_at(
-    problem: ZeroProblem, y: Array, t_prev: Array, args: Any, weights: Array | None = None
-) -> np.ndarray:
-    """Unit tangent at ``y`` oriented like ``t_prev``."""
-    y = np.asarray(y, dtype=float)
-    w = np.ones_like(y) if weights is None else np.asarray(weights, dtype=float)
-    t, _ = NewtonCorrector(problem).tangent(y, np.asarray(t_prev, dtype=float), w, args)
-    return np.asarray(t)
+    fold_failures: list[int] = field(default_factory=list)
 
 
 @dataclass
@@ -308,8 +130,8 @@ class Step:
 
     ``point`` is the accepted correction (None when the step was rejected and retried
     with a smaller ``ds``, or when the branch ended without a new point); ``events`` lists
-    ``("fold", y, precision)`` and ``("branch_point", None, nan)`` found between the
-    previous point and this one.
+    ``("fold", y, precision)`` (``y`` None when the fold could not be located) and
+    ``("branch_point", None, nan)`` found between the previous point and this one.
     """
 
     state: ContinuationState
@@ -341,6 +163,9 @@ class Continuation:
         accepted; a return value ``f < 1`` rejects the step and retries with ``ds * f``
         (e.g. when the amplitude or the harmonic content changed too much to trust the
         curve between the two points), ``f >= 1`` accepts it.
+    param_name : str, optional
+        Name of the parameter in messages (default: ``args["param_name"]`` when ``args``
+        is a dict that has it, else "parameter").
     """
 
     def __init__(
@@ -354,6 +179,7 @@ class Continuation:
         stop: Callable[[np.ndarray], bool] | None = None,
         predictor: str = "tangent",
         monitor: Callable[[np.ndarray, np.ndarray, Any], float] | None = None,
+        param_name: str | None = None,
     ) -> None:
         if predictor not in ("tangent", "secant"):
             raise BifidInputError(f"predictor must be 'tangent' or 'secant', got {predictor!r}.")
@@ -365,6 +191,7 @@ class Continuation:
         self.stop = stop
         self.predictor = predictor
         self.monitor = monitor
+        self.param_name = param_name
 
     def _w(self, n: int) -> np.ndarray:
         return np.ones(n) if self.weights is None else self.weights
@@ -431,10 +258,11 @@ class Continuation:
                                     corrector=self.corrector.state()))
         if not ok:
             if ds <= o.ds_min * 1.0001:
+                name = self.param_name or problem_param_name(args)
                 return Step(replace(
                     state, status="failed",
-                    message=f"the corrector failed near {problem_param_name(args)}="
-                    f"{float(y[pi]):.8g} even with the minimum step ds_min={o.ds_min:g}"))
+                    message=f"the corrector failed near {name}={float(y[pi]):.8g} even with "
+                    f"the minimum step ds_min={o.ds_min:g}"))
             return Step(replace(state, ds=max(ds / 2.0, o.ds_min),
                                 corrector=self.corrector.state()))
 
@@ -460,8 +288,7 @@ class Continuation:
         events: list[tuple[str, np.ndarray | None, float]] = []
         if o.detect_folds and float(t[pi]) * float(t_new[pi]) < 0:
             y_f, prec = _locate_fold(self.corrector, y, t, ds, w, args, pi)
-            if y_f is not None:
-                events.append(("fold", np.asarray(y_f), prec))
+            events.append(("fold", None if y_f is None else np.asarray(y_f), prec))
         if o.detect_bifurcations and float(sign_new) * float(state.sign) < 0:
             events.append(("branch_point", None, math.nan))
         self.corrector.accept(r)
@@ -476,6 +303,10 @@ class Continuation:
                       corrector=self.corrector.state())
         if self.stop is not None and self.stop(y_new):
             new.status, new.message = "completed", "stopping condition met"
+        elif (bound := _at_bound(p_new, float(y[pi]), o)) is not None:
+            new.status = "range"
+            new.message = (f"reached the parameter bound {bound:g} "
+                           f"(to {abs(p_new - bound):.1e}; it is approached asymptotically)")
         return Step(new, r, t_new, events)
 
     def run(self, y0: Array, t0: Array, args: Any, *, correct_start: bool = True,
@@ -491,14 +322,17 @@ class Continuation:
         ys, ts, its = [state.y], [state.t], [0]
         folds: list[tuple[int, np.ndarray, float]] = []
         bps: list[int] = []
+        fold_failures: list[int] = []
         if progress is not None:
             progress(1, float(state.y[pi]))
         while state.running:
             s = self.step(state)
             if s.point is not None:
                 for kind, y_e, prec in s.events:
-                    if kind == "fold":
+                    if kind == "fold" and y_e is not None:
                         folds.append((len(ys) - 1, y_e, prec))
+                    elif kind == "fold":
+                        fold_failures.append(len(ys) - 1)
                     elif kind == "branch_point":
                         bps.append(len(ys) - 1)
                 ys.append(np.asarray(s.point.y))
@@ -509,7 +343,8 @@ class Continuation:
             state = s.state
         return PalcResult(ys=np.array(ys), tangents=np.array(ts), iterations=np.array(its),
                           folds=folds, branch_points=bps, status=state.status,
-                          message=state.message, args=state.args)
+                          message=state.message, args=state.args,
+                          fold_failures=fold_failures)
 
 
 def palc(
@@ -524,6 +359,8 @@ def palc(
     stop: Callable[[np.ndarray], bool] | None = None,
     progress: Callable[[int, float], None] | None = None,
     correct_start: bool = True,
+    monitor: Callable[[np.ndarray, np.ndarray, Any], float] | None = None,
+    param_name: str | None = None,
 ) -> PalcResult:
     """Follow the solution curve of ``problem`` from ``y0`` along ``t0`` with Newton.
 
@@ -546,6 +383,8 @@ def palc(
     progress : callable ``(n_points, param) -> None``, optional
     correct_start : bool
         Correct ``y0`` with Newton before starting (fixed parameter).
+    monitor, param_name
+        As for :class:`Continuation`.
 
     Returns
     -------
@@ -554,11 +393,30 @@ def palc(
     """
     corrector = NewtonCorrector(problem, tol=options.newton_tol, max_iter=options.newton_max_iter)
     driver = Continuation(corrector, problem.param_index, options, weights=weights,
-                          update_args=update_args, stop=stop)
+                          update_args=update_args, stop=stop, monitor=monitor,
+                          param_name=param_name)
     # Single-threaded BLAS: these dense systems are small, and a multi-threaded OpenBLAS
     # on a loaded machine is 10-30x slower (threads spin against each other).
     with threadpool_limits(1, user_api="blas"):
         return driver.run(y0, t0, args, correct_start=correct_start, progress=progress)
+
+
+#: a branch whose parameter comes this close to a bound (relative to the range, or to
+#: max(1, |bound|) for a half-open range) while moving towards it has reached it: a branch
+#: that approaches the bound only asymptotically would otherwise creep towards it forever
+BOUND_TOL = 1e-9
+
+
+def _at_bound(p_new: float, p_old: float, o: ContinuationOptions) -> float | None:
+    """The bound that ``p_new`` has reached while moving towards it, else None."""
+    span = o.p_max - o.p_min
+    for bound in (o.p_min, o.p_max):
+        if not math.isfinite(bound):
+            continue
+        tol = BOUND_TOL * (span if math.isfinite(span) else max(1.0, abs(bound)))
+        if abs(p_new - bound) <= tol and abs(p_new - bound) < abs(p_old - bound):
+            return bound
+    return None
 
 
 def problem_param_name(args: Any) -> str:

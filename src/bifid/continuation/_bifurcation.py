@@ -1,0 +1,113 @@
+"""The bifurcation diagram of an autonomous system in one parameter.
+
+Equilibria from the start of the range towards its end, with their verified Hopf points,
+folds and branch-point candidates, and the branch of periodic orbits born at every
+verified Hopf point, gathered into one :class:`~bifid.continuation.Diagram` — what
+``bifid continue`` prints.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from typing import Any
+
+import jax.numpy as jnp
+import numpy as np
+
+from bifid.continuation._branch import Branch, SpecialPoint
+from bifid.continuation._collocation import hopf_orbits
+from bifid.continuation._diagram import Diagram, diagram_of
+from bifid.continuation._equilibria import equilibria
+from bifid.continuation._options import ContinuationOptions
+from bifid.continuation._verify import LOCATION_ERRORS
+from bifid.errors import BifidInputError
+from bifid.systems import System
+
+
+def _failed_orbit_branch(system: System, param: str, p: Any, hopf: SpecialPoint,
+                         exc: BaseException) -> Branch:
+    text = str(exc).strip().splitlines()
+    return Branch(kind="periodic", system=system.name, param=param, params=np.empty(0),
+                  solutions=np.empty((0, system.n_states)), stable=np.empty(0, bool),
+                  special_points=[], data={}, p=np.asarray(p), status="failed",
+                  message=f"the orbit branch of the Hopf point at {param}={hopf.param:.8g} "
+                  f"failed: {text[0] if text else type(exc).__name__}",
+                  signals=tuple(system.states), meta={"start_param": hopf.param})
+
+
+def bifurcation_diagram(
+    system: System,
+    param: str,
+    start: float,
+    end: float,
+    *,
+    p: Any = None,
+    x0: np.ndarray | None = None,
+    n_mesh: int = 64,
+    max_steps: int = 1000,
+    orbits: bool = True,
+    progress: Callable[[int, float], None] | None = None,
+    **diagram_kw: Any,
+) -> Diagram:
+    """Equilibria over ``[start, end]`` and the orbit branches of their Hopf points.
+
+    Parameters
+    ----------
+    system : System
+        An autonomous system.
+    param : str
+        Continuation parameter.
+    start, end : float
+        The equilibrium branch starts at ``start`` (from ``x0``) and runs towards ``end``;
+        every branch stays within ``[min(start, end), max(start, end)]``.
+    p : array, optional
+        Parameter vector (defaults of the system).
+    x0 : array of shape (n,), optional
+        Guess of the equilibrium at ``start`` (default zeros).
+    n_mesh : int
+        Collocation points of the orbits.
+    max_steps : int
+        Step budget of each branch.
+    orbits : bool
+        Continue the orbits of every Hopf point (False: equilibria only).
+    progress : callable ``(n_points, param) -> None``, optional
+    **diagram_kw
+        Passed to :class:`~bifid.continuation.Diagram` (``settings``, ``warnings``, ...).
+
+    Returns
+    -------
+    Diagram
+        ``kind="bifurcation"``: the equilibrium branch first, then one orbit branch per
+        verified Hopf point (a branch that could not be continued is a failed branch
+        with its reason, which makes the diagram incomplete).
+
+    Raises
+    ------
+    BifidInputError
+        For a forced system, an unknown parameter, ``start == end`` or a bad ``x0``.
+    ConvergenceError
+        If no equilibrium is found at ``start``.
+    """
+    start, end = float(start), float(end)
+    if not (np.isfinite(start) and np.isfinite(end)) or start == end:
+        raise BifidInputError(f"the range must be two different finite numbers, got "
+                              f"{start!r}, {end!r}.")
+    p = system.param_vector() if p is None else jnp.asarray(p, dtype=jnp.float64)
+    lo, hi = min(start, end), max(start, end)
+    span = hi - lo
+    eq_opts = ContinuationOptions(ds=span / 50, ds_max=span / 20, ds_min=span * 1e-9,
+                                  p_min=lo, p_max=hi, max_steps=max_steps,
+                                  direction=1 if end > start else -1)
+    eq = equilibria(system, param, p=p, x0=x0, start=start, options=eq_opts, progress=progress)
+    branches = [eq]
+    if orbits:
+        # at least ten steps across the range, where the orbits change little
+        orbit_opts = ContinuationOptions(ds=1e-3, ds_max=max(1e-3, min(0.25, span / 10)),
+                                         ds_min=1e-9, p_min=lo, p_max=hi, max_steps=max_steps)
+        for h in eq.special("hopf"):
+            try:
+                branches.append(hopf_orbits(system, h, p=p, n_mesh=n_mesh, options=orbit_opts,
+                                            progress=progress))
+            except LOCATION_ERRORS as exc:
+                branches.append(_failed_orbit_branch(system, param, p, h, exc))
+    return diagram_of("bifurcation", branches, **diagram_kw)
