@@ -109,22 +109,8 @@ def read_csv_dataset(path: str | os.PathLike[str]) -> xr.Dataset:
     """
     path = Path(path)
     where = str(path)
-    text = _read_text(path)
-    meta: dict[str, str] = {}
-    lines = text.splitlines()
-    start = 0
-    for start, line in enumerate(lines):  # noqa: B007  (start is used after the loop)
-        s = line.strip()
-        if not s:
-            continue
-        if not s.startswith("#"):
-            break
-        body = s.lstrip("#").strip()
-        key, sep, value = body.partition(":")
-        if sep and key.strip() in _META_KEYS:
-            meta[key.strip()] = value.strip()
-    else:
-        raise BifidInputError(f"{where}: no header row (expected e.g. record,param,stable,time,h).")
+    lines = _read_text(path).splitlines()
+    meta, start = _metadata(lines, where)
     try:
         csv.field_size_limit(1 << 20)
         reader = csv.reader(io.StringIO("\n".join(lines[start:])))
@@ -132,17 +118,41 @@ def read_csv_dataset(path: str | os.PathLike[str]) -> xr.Dataset:
         rows = list(reader)
     except (csv.Error, StopIteration) as exc:
         raise BifidInputError(f"{where}: malformed CSV ({exc}).") from None
+    kind, cols, signals = _schema(header, where)
+    if not rows:
+        raise BifidInputError(f"{where}: the file holds no data rows.")
+    groups = _group_rows(rows, header, cols, signals, start + 2, where)
+    records = [_record(kind, rid, g, f"{where}, record {rid!r} (from line {g['line']})")
+               for rid, g in groups.items()]
+    return _dataset(kind, records, signals, meta, path, where)
+
+
+def _metadata(lines: list[str], where: str) -> tuple[dict[str, str], int]:
+    """``# key: value`` lines before the header, and the index of the header row."""
+    meta: dict[str, str] = {}
+    for start, line in enumerate(lines):
+        s = line.strip()
+        if not s:
+            continue
+        if not s.startswith("#"):
+            return meta, start
+        key, sep, value = s.lstrip("#").strip().partition(":")
+        if sep and key.strip() in _META_KEYS:
+            meta[key.strip()] = value.strip()
+    raise BifidInputError(f"{where}: no header row (expected e.g. record,param,stable,time,h).")
+
+
+def _schema(header: list[str], where: str) -> tuple[str, dict[str, int], list[str]]:
+    """The dataset kind, the column index by name and the signal columns of a header."""
     if len(set(header)) != len(header) or any(not h for h in header):
         raise BifidInputError(f"{where}: column names must be unique and non-empty: {header}.")
     cols = {h: i for i, h in enumerate(header)}
     if "param" in cols and ("omega" in cols or "forcing" in cols):
         raise BifidInputError(f"{where}: columns 'param' and 'omega'/'forcing' cannot be mixed.")
     if "param" in cols:
-        kind = "lco"
-        required = ("record", "param", "stable", "time")
+        kind, required = "lco", ("record", "param", "stable", "time")
     elif "omega" in cols and "forcing" in cols:
-        kind = "forced"
-        required = ("record", "omega", "forcing", "stable", "time")
+        kind, required = "forced", ("record", "omega", "forcing", "stable", "time")
     else:
         raise BifidInputError(
             f"{where}: cannot tell the dataset kind; an LCO file needs columns "
@@ -152,19 +162,21 @@ def read_csv_dataset(path: str | os.PathLike[str]) -> xr.Dataset:
     missing = [c for c in required if c not in cols]
     if missing:
         raise BifidInputError(f"{where}: missing column(s) {missing}.")
-    bad = [c for c in header if c in ("frequency",) and kind == "forced"] + [
-        c for c in header if c in ("force", "curve", "amplitude", "phase") and kind == "lco"]
+    foreign = ("frequency",) if kind == "forced" else ("force", "curve", "amplitude", "phase")
+    bad = [c for c in header if c in foreign]
     if bad:
         raise BifidInputError(f"{where}: column(s) {bad} do not belong in a {kind!r} file.")
     signals = [h for h in header if h not in _RESERVED]
     if not signals:
         raise BifidInputError(f"{where}: no signal columns (every column is a reserved name).")
-    rec_cols = [c for c in (*_LCO_RECORD_COLS, *_FORCED_RECORD_COLS, "stable") if c in cols]
-    if not rows:
-        raise BifidInputError(f"{where}: the file holds no data rows.")
+    return kind, cols, signals
 
+
+def _group_rows(rows: list[list[str]], header: list[str], cols: dict[str, int],
+                signals: list[str], first_line: int, where: str) -> dict[str, dict[str, Any]]:
+    """Rows grouped by record id: per-record constants and per-sample columns."""
+    rec_cols = [c for c in (*_LCO_RECORD_COLS, *_FORCED_RECORD_COLS, "stable") if c in cols]
     groups: dict[str, dict[str, Any]] = {}
-    first_line = start + 2
     for j, row in enumerate(rows):
         line = first_line + j
         if not row or all(not c.strip() for c in row):
@@ -176,10 +188,10 @@ def read_csv_dataset(path: str | os.PathLike[str]) -> xr.Dataset:
         rid = row[cols["record"]].strip()
         if not rid:
             raise BifidInputError(f"{where}, line {line}: empty record id.")
-        g = groups.get(rid)
         consts = {c: _float(row[cols[c]], c, line, where,
                             allow_empty=c in ("stable", "frequency", "amplitude", "phase"))
                   for c in rec_cols}
+        g = groups.get(rid)
         if g is None:
             g = groups[rid] = {"consts": consts, "line": line, "time": [], "sig": [],
                                **{c: [] for c in _SAMPLE_COLS if c in cols}}
@@ -198,65 +210,73 @@ def read_csv_dataset(path: str | os.PathLike[str]) -> xr.Dataset:
                 g[c].append(_float(row[cols[c]], c, line, where, allow_empty=c == "target"))
     if not groups:
         raise BifidInputError(f"{where}: the file holds no data rows.")
+    return groups
 
-    records: list[LCORecord | ForcedRecord] = []
-    for rid, g in groups.items():
-        rwhere = f"{where}, record {rid!r} (from line {g['line']})"
-        t = np.array(g["time"])
-        if t.shape[0] < 2:
-            raise BifidInputError(f"{rwhere}: needs at least 2 samples to define a sample rate.")
-        if not np.all(np.isfinite(t)):
-            raise BifidInputError(f"{rwhere}: time contains NaN/inf.")
-        dt = np.diff(t)
-        step = (t[-1] - t[0]) / (t.shape[0] - 1)
-        if step <= 0 or np.any(dt <= 0):
-            raise BifidInputError(f"{rwhere}: time must increase strictly within a record.")
-        if np.max(np.abs(dt - step)) > _TIME_RTOL * step + 1e-12 * max(abs(t[-1]), 1.0):
-            raise BifidInputError(
-                f"{rwhere}: time is not uniformly sampled (steps from {dt.min():g} to "
-                f"{dt.max():g} s); resample to a uniform grid first."
+
+def _sample_rate(t: np.ndarray, rwhere: str) -> float:
+    """The sample rate of a uniformly sampled time column."""
+    if t.shape[0] < 2:
+        raise BifidInputError(f"{rwhere}: needs at least 2 samples to define a sample rate.")
+    if not np.all(np.isfinite(t)):
+        raise BifidInputError(f"{rwhere}: time contains NaN/inf.")
+    dt = np.diff(t)
+    step = (t[-1] - t[0]) / (t.shape[0] - 1)
+    if step <= 0 or np.any(dt <= 0):
+        raise BifidInputError(f"{rwhere}: time must increase strictly within a record.")
+    if np.max(np.abs(dt - step)) > _TIME_RTOL * step + 1e-12 * max(abs(t[-1]), 1.0):
+        raise BifidInputError(
+            f"{rwhere}: time is not uniformly sampled (steps from {dt.min():g} to "
+            f"{dt.max():g} s); resample to a uniform grid first."
+        )
+    with np.errstate(over="ignore"):
+        rate = float(1.0 / step)
+    if not math.isfinite(rate):
+        raise BifidInputError(f"{rwhere}: time step {step:g} s is too small.")
+    return rate
+
+
+def _record(kind: str, rid: str, g: dict[str, Any], rwhere: str) -> LCORecord | ForcedRecord:
+    """One record of a grouped CSV file."""
+    rate = _sample_rate(np.array(g["time"]), rwhere)
+    c = g["consts"]
+    stable_v = c.get("stable", math.nan)
+    if math.isnan(stable_v) or stable_v == -1:
+        stable = None
+    elif stable_v in (0.0, 1.0):
+        stable = bool(stable_v)
+    else:
+        raise BifidInputError(f"{rwhere}: stable must be 1, 0, -1 or empty, got {stable_v!r}.")
+    sig = np.array(g["sig"])
+    extra: dict[str, Any] = {"record_id": rid}
+    per_sample = {k: (np.array(g[k]) if k in g else None) for k in _SAMPLE_COLS}
+    try:
+        if kind == "lco":
+            freq = c.get("frequency", math.nan)
+            if math.isnan(freq):
+                freq = estimate_frequency(sig[:, 0], rate)
+                extra["frequency_estimated"] = 1.0
+            return LCORecord(
+                param=c["param"], signals=sig, sample_rate=rate, stable=stable,
+                control=per_sample["control"], target=per_sample["target"],
+                frequency=freq, extra=extra,
             )
-        with np.errstate(over="ignore"):
-            rate = float(1.0 / step)
-        if not math.isfinite(rate):
-            raise BifidInputError(f"{rwhere}: time step {step:g} s is too small.")
-        c = g["consts"]
-        stable_v = c.get("stable", math.nan)
-        if math.isnan(stable_v) or stable_v == -1:
-            stable = None
-        elif stable_v in (0.0, 1.0):
-            stable = bool(stable_v)
-        else:
-            raise BifidInputError(f"{rwhere}: stable must be 1, 0, -1 or empty, got {stable_v!r}.")
-        sig = np.array(g["sig"])
-        extra: dict[str, Any] = {"record_id": rid}
-        per_sample = {k: (np.array(g[k]) if k in g else None) for k in _SAMPLE_COLS}
-        try:
-            if kind == "lco":
-                freq = c.get("frequency", math.nan)
-                if math.isnan(freq):
-                    freq = estimate_frequency(sig[:, 0], rate)
-                    extra["frequency_estimated"] = 1.0
-                records.append(LCORecord(
-                    param=c["param"], signals=sig, sample_rate=rate, stable=stable,
-                    control=per_sample["control"], target=per_sample["target"],
-                    frequency=freq, extra=extra,
-                ))
-            else:
-                curve = c.get("curve", 0.0)
-                if not math.isfinite(curve) or curve != int(curve):
-                    raise BifidInputError(f"curve must be an integer, got {curve!r}.")
-                records.append(ForcedRecord(
-                    omega=c["omega"], forcing=c["forcing"], signals=sig, sample_rate=rate,
-                    stable=stable, force=per_sample["force"], control=per_sample["control"],
-                    target=per_sample["target"], curve=int(curve), extra=extra,
-                    amplitude=None if math.isnan(c.get("amplitude", math.nan))
-                    else c["amplitude"],
-                    phase=None if math.isnan(c.get("phase", math.nan)) else c["phase"],
-                ))
-        except BifidInputError as exc:
-            raise BifidInputError(f"{rwhere}: {exc}") from None
+        curve = c.get("curve", 0.0)
+        if not math.isfinite(curve) or curve != int(curve):
+            raise BifidInputError(f"curve must be an integer, got {curve!r}.")
+        return ForcedRecord(
+            omega=c["omega"], forcing=c["forcing"], signals=sig, sample_rate=rate,
+            stable=stable, force=per_sample["force"], control=per_sample["control"],
+            target=per_sample["target"], curve=int(curve), extra=extra,
+            amplitude=None if math.isnan(c.get("amplitude", math.nan)) else c["amplitude"],
+            phase=None if math.isnan(c.get("phase", math.nan)) else c["phase"],
+        )
+    except BifidInputError as exc:
+        raise BifidInputError(f"{rwhere}: {exc}") from None
 
+
+def _dataset(kind: str, records: list[Any], signals: list[str], meta: dict[str, str],
+             path: Path, where: str) -> xr.Dataset:
+    """The dataset of the records, with the file's metadata and units."""
     units = _parse_units(meta.get("units", ""), where)
     signal_units = {s: units[s] for s in signals if s in units}
     settings = {"format": "csv", "file": str(path), "metadata": meta}

@@ -91,37 +91,8 @@ def validate_dataset(ds: xr.Dataset, where: str = "dataset") -> xr.Dataset:
         dimensions, wrong shapes, non-finite values where values are required,
         ``n_samples`` outside ``1..len(time)``, ``sample_rate <= 0``, no records...
     """
-    if not isinstance(ds, xr.Dataset):
-        raise BifidInputError(f"{where}: expected an xarray.Dataset, got {type(ds).__name__}.")
-    kind = ds.attrs.get("bifid_kind")
-    if isinstance(kind, bytes):
-        kind = kind.decode("utf-8", errors="replace")
-    if kind is None:
-        _fail(where, "not a bifid dataset (attribute 'bifid_kind' is missing); "
-              "import raw measurements with `bifid import`.")
-    if not isinstance(kind, str) or kind not in KINDS:
-        _fail(where, f"unknown bifid_kind {kind!r}; expected one of {', '.join(KINDS)}.")
-    for dim in ("record", "time", "signal"):
-        if dim not in ds.sizes:
-            _fail(where, f"dimension {dim!r} is missing.")
-    n_rec, n_time, n_sig = ds.sizes["record"], ds.sizes["time"], ds.sizes["signal"]
-    if n_rec == 0:
-        _fail(where, "the dataset holds no records.")
-    if n_time == 0 or n_sig == 0:
-        _fail(where, f"empty dimension (time={n_time}, signal={n_sig}).")
-    if "signal" not in ds.coords or ds["signal"].dims != ("signal",):
-        _fail(where, "coordinate 'signal' (signal names) is missing.")
-    names = [str(s) for s in ds["signal"].values.tolist()]
-    if any(not n for n in names) or len(set(names)) != len(names):
-        _fail(where, f"signal names must be unique and non-empty, found {names}.")
-
-    required = {**COMMON_VARS, **KIND_VARS[kind]}
-    for name, dims in required.items():
-        if name not in ds.variables:
-            _fail(where, f"required variable {name!r} is missing (bifid_kind={kind!r}).")
-        if ds[name].dims != dims:
-            _fail(where, f"variable {name!r} must have dims {dims}, found {ds[name].dims}.")
-
+    kind, names = _check_structure(ds, where)
+    n_time = ds.sizes["time"]
     n_samples = _numeric(where, ds, "n_samples")
     if not np.all(np.isfinite(n_samples)) or np.any(n_samples != np.round(n_samples)):
         _fail(where, "n_samples must be integers.")
@@ -155,41 +126,9 @@ def validate_dataset(ds: xr.Dataset, where: str = "dataset") -> xr.Dataset:
         _fail(where, "control_rms must be finite and >= 0.")
 
     if kind == "lco":
-        param = _numeric(where, ds, "param")
-        if not np.all(np.isfinite(param)):
-            _fail(where, "param must be finite for every record.")
-        freq = _numeric(where, ds, "frequency")
-        if np.any(np.isinf(freq)) or np.any(freq < 0):
-            _fail(where, "frequency must be >= 0 rad/s (NaN when unknown).")
-        amp = _numeric(where, ds, "amplitude")
-        if not np.all(np.isfinite(amp)) or np.any(amp < 0):
-            _fail(where, "amplitude must be finite and >= 0.")
+        _check_lco(ds, where)
     else:
-        omega = _numeric(where, ds, "omega")
-        if not np.all(np.isfinite(omega)) or np.any(omega < 0):
-            _fail(where, "omega must be finite and >= 0 rad/s.")
-        forcing = _numeric(where, ds, "forcing")
-        if not np.all(np.isfinite(forcing)):
-            _fail(where, "forcing must be finite.")
-        amp = _numeric(where, ds, "amplitude")
-        if not np.all(np.isfinite(amp)) or np.any(amp < 0):
-            _fail(where, "amplitude must be finite and >= 0.")
-        phase = _numeric(where, ds, "phase")
-        if np.any(np.isinf(phase)):
-            _fail(where, "phase must be finite or NaN (unknown).")
-        force = _numeric(where, ds, "force")
-        fin = np.isfinite(force) & mask
-        partial = np.any(fin, axis=1) & np.any(~np.isfinite(force) & mask, axis=1)
-        if np.any(partial) or np.any(np.isinf(force)):
-            _fail(where, "force must be finite over a record's samples, or all NaN when absent.")
-        curve = _numeric(where, ds, "curve")
-        if not np.all(np.isfinite(curve)) or np.any(curve != np.round(curve)):
-            _fail(where, "curve must hold integer ids.")
-        observed = ds.attrs.get("observed")
-        if isinstance(observed, bytes):
-            observed = observed.decode("utf-8", errors="replace")
-        if not isinstance(observed, str) or observed not in names:
-            _fail(where, f"attribute 'observed' must name a signal in {names}, found {observed!r}.")
+        _check_forced(ds, where, names, mask)
 
     for attr in JSON_ATTRS:
         value = parse_json_attr(ds, attr, where)
@@ -215,3 +154,80 @@ def validate_dataset(ds: xr.Dataset, where: str = "dataset") -> xr.Dataset:
         out["curve"] = ("record", _numeric(where, ds, "curve").astype(np.int64),
                         dict(ds["curve"].attrs))
     return out
+
+
+def _check_structure(ds: xr.Dataset, where: str) -> tuple[str, list[str]]:
+    """The dataset kind and signal names, after checking dimensions and variables."""
+    if not isinstance(ds, xr.Dataset):
+        raise BifidInputError(f"{where}: expected an xarray.Dataset, got {type(ds).__name__}.")
+    kind = ds.attrs.get("bifid_kind")
+    if isinstance(kind, bytes):
+        kind = kind.decode("utf-8", errors="replace")
+    if kind is None:
+        _fail(where, "not a bifid dataset (attribute 'bifid_kind' is missing); "
+              "import raw measurements with `bifid import`.")
+    if not isinstance(kind, str) or kind not in KINDS:
+        _fail(where, f"unknown bifid_kind {kind!r}; expected one of {', '.join(KINDS)}.")
+    for dim in ("record", "time", "signal"):
+        if dim not in ds.sizes:
+            _fail(where, f"dimension {dim!r} is missing.")
+    n_rec, n_time, n_sig = ds.sizes["record"], ds.sizes["time"], ds.sizes["signal"]
+    if n_rec == 0:
+        _fail(where, "the dataset holds no records.")
+    if n_time == 0 or n_sig == 0:
+        _fail(where, f"empty dimension (time={n_time}, signal={n_sig}).")
+    if "signal" not in ds.coords or ds["signal"].dims != ("signal",):
+        _fail(where, "coordinate 'signal' (signal names) is missing.")
+    names = [str(s) for s in ds["signal"].values.tolist()]
+    if any(not n for n in names) or len(set(names)) != len(names):
+        _fail(where, f"signal names must be unique and non-empty, found {names}.")
+
+    required = {**COMMON_VARS, **KIND_VARS[kind]}
+    for name, dims in required.items():
+        if name not in ds.variables:
+            _fail(where, f"required variable {name!r} is missing (bifid_kind={kind!r}).")
+        if ds[name].dims != dims:
+            _fail(where, f"variable {name!r} must have dims {dims}, found {ds[name].dims}.")
+    return kind, names
+
+
+def _check_lco(ds: xr.Dataset, where: str) -> None:
+    """Per-record variables of a limit-cycle dataset."""
+    param = _numeric(where, ds, "param")
+    if not np.all(np.isfinite(param)):
+        _fail(where, "param must be finite for every record.")
+    freq = _numeric(where, ds, "frequency")
+    if np.any(np.isinf(freq)) or np.any(freq < 0):
+        _fail(where, "frequency must be >= 0 rad/s (NaN when unknown).")
+    amp = _numeric(where, ds, "amplitude")
+    if not np.all(np.isfinite(amp)) or np.any(amp < 0):
+        _fail(where, "amplitude must be finite and >= 0.")
+
+
+def _check_forced(ds: xr.Dataset, where: str, names: list[str], mask: np.ndarray) -> None:
+    """Per-record variables of a forced-response dataset."""
+    omega = _numeric(where, ds, "omega")
+    if not np.all(np.isfinite(omega)) or np.any(omega < 0):
+        _fail(where, "omega must be finite and >= 0 rad/s.")
+    forcing = _numeric(where, ds, "forcing")
+    if not np.all(np.isfinite(forcing)):
+        _fail(where, "forcing must be finite.")
+    amp = _numeric(where, ds, "amplitude")
+    if not np.all(np.isfinite(amp)) or np.any(amp < 0):
+        _fail(where, "amplitude must be finite and >= 0.")
+    phase = _numeric(where, ds, "phase")
+    if np.any(np.isinf(phase)):
+        _fail(where, "phase must be finite or NaN (unknown).")
+    force = _numeric(where, ds, "force")
+    fin = np.isfinite(force) & mask
+    partial = np.any(fin, axis=1) & np.any(~np.isfinite(force) & mask, axis=1)
+    if np.any(partial) or np.any(np.isinf(force)):
+        _fail(where, "force must be finite over a record's samples, or all NaN when absent.")
+    curve = _numeric(where, ds, "curve")
+    if not np.all(np.isfinite(curve)) or np.any(curve != np.round(curve)):
+        _fail(where, "curve must hold integer ids.")
+    observed = ds.attrs.get("observed")
+    if isinstance(observed, bytes):
+        observed = observed.decode("utf-8", errors="replace")
+    if not isinstance(observed, str) or observed not in names:
+        _fail(where, f"attribute 'observed' must name a signal in {names}, found {observed!r}.")
