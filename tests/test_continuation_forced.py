@@ -78,6 +78,23 @@ def test_backbone_matches_first_order_frequency_amplitude_relation(duffing):
     assert np.allclose(np.cos(bb.data["phase"]), 0.0, atol=1e-8)
 
 
+def test_backbone_follows_the_requested_mode_within_the_range():
+    """Check the second shaw_pierre mode (which the system's symmetric force cannot
+    excite): it starts at sqrt(3), stays that mode (share > 0.99), starts and ends exactly
+    on the amplitude range, and matches the first-order NNM frequency at small amplitude."""
+    sp = get_system("shaw_pierre")
+    bb = backbone(sp, (0.01, 0.5), mode=1, n_mesh=16)
+    A, W = bb.data["observed_amplitude"], bb.data["omega"]
+    assert bb.status == "range" and bb.complete
+    assert A[0] == pytest.approx(0.01, rel=1e-10) and A[-1] == pytest.approx(0.5, rel=1e-10)
+    assert np.all(bb.data["mode_share"] > 0.99)
+    assert W[0] == pytest.approx(np.sqrt(3.0), rel=1e-5)
+    # the cubic spring of mass 1 projected on the mode (1, -1) gives the modal equation
+    # eta'' + 3 eta + (kappa / 2) eta^3 = 0: to first order W = sqrt(3 + 3/4 kappa/2 A^2)
+    kappa = 0.003
+    assert np.allclose(W, np.sqrt(3 + 0.75 * kappa / 2 * A**2), rtol=1e-6)
+
+
 def test_bad_inputs_raise_clear_errors(duffing):
     """Check the errors for an autonomous system, a degenerate range and non-finite forcing."""
     from bifid.errors import BifidInputError
@@ -90,10 +107,15 @@ def test_bad_inputs_raise_clear_errors(duffing):
         frc(duffing, float("nan"), (0.9, 1.1))
 
 
-def test_coarse_mesh_in_lightly_damped_system_warns():
-    """Check that an under-resolved forced response raises a ResolutionWarning."""
-    from bifid.errors import ResolutionWarning
-
+def test_coarse_start_mesh_is_refined_and_unresolved_start_refused():
+    """Check that a too-coarse starting mesh is refined until every response is resolved,
+    and that without adaptation an unresolved start is refused."""
     sp = get_system("shaw_pierre")
-    with pytest.warns(ResolutionWarning, match="Increase n_mesh"):
-        frc(sp, 0.02, (0.98, 1.02), n_mesh=8)
+    br = frc(sp, 0.02, (0.98, 1.02), n_mesh=8)
+    assert br.status == "range" and br.complete
+    assert br.data["n_mesh"].min() >= 16
+    assert np.all(br.verification["spectral_tail"] <= 1e-9)
+    from bifid.errors import ConvergenceError
+
+    with pytest.raises(ConvergenceError, match="spectral tail"):
+        frc(sp, 0.02, (0.98, 1.02), n_mesh=8, adapt=False)

@@ -7,6 +7,8 @@ orbits or forced responses), :func:`palc` is the algorithm, and
 carrying its special points.
 """
 
+from bifid.continuation._backbone import backbone
+from bifid.continuation._bifurcation import bifurcation_diagram
 from bifid.continuation._branch import END_REASONS, Branch, Candidate, SpecialPoint
 from bifid.continuation._collocation import (
     continue_from_hopf,
@@ -16,15 +18,11 @@ from bifid.continuation._collocation import (
     resample_orbit,
 )
 from bifid.continuation._diagram import Diagram
-from bifid.continuation._equilibria import (
-    equilibria,
-    equilibrium_problem,
-    first_lyapunov_coefficient,
-    locate_hopf,
-)
-from bifid.continuation._floquet import floquet_multipliers, monodromy
-from bifid.continuation._forced import backbone, forced_problem, frc, scurve
+from bifid.continuation._equilibria import equilibria, equilibrium_problem
+from bifid.continuation._floquet import floquet, floquet_multipliers, monodromy
+from bifid.continuation._forced import forced_problem, frc, scurve
 from bifid.continuation._fourier import fourier_differentiation_matrix, fourier_grid
+from bifid.continuation._hopf import first_lyapunov_coefficient, locate_hopf
 from bifid.continuation._options import ContinuationOptions
 from bifid.continuation._palc import (
     AbstractCorrector,
@@ -39,28 +37,43 @@ from bifid.continuation._palc import (
     palc,
     tangent_at,
 )
+from bifid.continuation._verify import (
+    VERIFIERS,
+    Check,
+    Findings,
+    Verdict,
+    confirm,
+    register_verifier,
+)
 
 __all__ = [
     "END_REASONS",
+    "VERIFIERS",
     "AbstractCorrector",
     "Branch",
     "Candidate",
+    "Check",
     "Continuation",
     "ContinuationOptions",
     "ContinuationState",
     "Correction",
     "Diagram",
+    "Findings",
     "NewtonCorrector",
     "PalcResult",
     "SpecialPoint",
     "Step",
+    "Verdict",
     "ZeroProblem",
     "backbone",
+    "bifurcation_diagram",
+    "confirm",
     "continue_from_hopf",
     "correct",
     "equilibria",
     "equilibrium_problem",
     "first_lyapunov_coefficient",
+    "floquet",
     "floquet_multipliers",
     "forced_problem",
     "fourier_differentiation_matrix",
@@ -72,6 +85,7 @@ __all__ = [
     "orbit_problem",
     "palc",
     "periodic_orbits",
+    "register_verifier",
     "resample_orbit",
     "scurve",
     "tangent_at",

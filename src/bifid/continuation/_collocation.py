@@ -12,6 +12,11 @@ the second being the integral phase condition against the previous point of the
 branch. Pseudo-arclength continuation (``_palc``) adds the arclength equation. The
 Jacobian is assembled explicitly — ``kron(D_M, I) - T/2pi blockdiag(f_x(v_k))`` plus two
 columns — which is far cheaper than differentiating the whole residual.
+
+The mesh follows the orbits (``_mesh``: refined where the spectral tail exceeds the
+tolerance, coarsened again where the orbits are smooth, up to ``max_mesh``); the
+branch's Floquet multipliers, special points and end are worked out in
+``_orbit_branch``.
 """
 
 from __future__ import annotations
@@ -26,20 +31,26 @@ import numpy as np
 
 from bifid.continuation._branch import Branch, SpecialPoint
 from bifid.continuation._equilibria import equilibria
-from bifid.continuation._floquet import autonomous_rhs, floquet_multipliers
-from bifid.continuation._fourier import (
-    check_resolution,
-    fourier_differentiation_matrix,
-    fourier_grid,
+from bifid.continuation._fourier import fourier_differentiation_matrix, fourier_grid
+from bifid.continuation._mesh import (
+    MeshPolicy,
+    Stage,
+    default_max_mesh,
+    mesh_tail,
+    resample_orbit,
+    run_adaptive,
 )
 from bifid.continuation._options import ContinuationOptions
-from bifid.continuation._palc import ZeroProblem, correct, palc
+from bifid.continuation._orbit_branch import OrbitEnds, orbit_branch
+from bifid.continuation._palc import ZeroProblem, correct
 from bifid.errors import BifidInputError, ConvergenceError
-from bifid.signal import max_abs, spectral_tail
 from bifid.systems import System
 
 Array = jnp.ndarray
 TWO_PI = 2.0 * np.pi
+
+__all__ = ["continue_from_hopf", "hopf_orbits", "orbit_problem", "periodic_orbits",
+           "resample_orbit"]
 
 
 @functools.lru_cache(maxsize=32)
@@ -52,7 +63,6 @@ def orbit_problem(field: Callable, n_mesh: int, n_states: int) -> ZeroProblem:
     """
     M, n = n_mesh, n_states
     D = jnp.asarray(fourier_differentiation_matrix(M))
-    KD = jnp.kron(D, jnp.eye(n))
     vfield = jax.vmap(field, in_axes=(0, None))
     vjac = jax.vmap(jax.jacfwd(field), in_axes=(0, None))
 
@@ -71,6 +81,9 @@ def orbit_problem(field: Callable, n_mesh: int, n_states: int) -> ZeroProblem:
         V, T, lam, p = split(y, args)
         Jk = vjac(V, p)  # (M, n, n)
         block = jnp.einsum("kij,kl->kilj", Jk, jnp.eye(M)).reshape(M * n, M * n)
+        # kron(D, I) built at run time: as a compile-time constant XLA would fold a
+        # (Mn)^2 array, which takes seconds for large meshes
+        KD = jnp.kron(jax.lax.optimization_barrier(D), jnp.eye(n))
         dV = KD - T / TWO_PI * block
         dT = -vfield(V, p).ravel() / TWO_PI
 
@@ -85,19 +98,29 @@ def orbit_problem(field: Callable, n_mesh: int, n_states: int) -> ZeroProblem:
     return ZeroProblem(residual=residual, param_index=-1, jacobian=jacobian)
 
 
-def _orbit_weights(M: int, n: int) -> np.ndarray:
-    # mesh values enter the arclength norm as an average over the orbit
+def orbit_weights(M: int, n: int) -> np.ndarray:
+    """Arclength weights: mesh values as an average over the orbit (mesh-independent)."""
     return np.concatenate([np.full(M * n, 1.0 / M), [1.0, 1.0]])
 
 
-def _dref_updater(M: int, n: int):
+def orbit_stage(system: System, p: Array, idx: int, M: int) -> Stage:
+    """The collocation problem of ``system``'s orbits on ``M`` points (``_mesh.Stage``)."""
+    n = system.n_states
     D = fourier_differentiation_matrix(M)
 
-    def update(y, args):
+    def args_of(y, _prev=None):
         V = np.asarray(y[: M * n]).reshape(M, n)
-        return {**args, "dref": jnp.asarray((D @ V).ravel())}
+        return {"p": p, "idx": jnp.asarray(idx), "dref": jnp.asarray((D @ V).ravel())}
 
-    return update
+    return Stage(problem=orbit_problem(system.field, M, n), weights=orbit_weights(M, n),
+                 args=args_of, update_args=lambda y, args: args_of(y))
+
+
+def _policy(n_mesh: int, max_mesh: int | None, resolution_tol: float, adapt: bool,
+            n_states: int) -> MeshPolicy:
+    limit = max_mesh if max_mesh is not None else default_max_mesh(n_mesh, n_states)
+    return MeshPolicy(n_mesh=n_mesh, max_mesh=max(limit, n_mesh), tol=resolution_tol,
+                      adapt=adapt)
 
 
 def hopf_orbits(
@@ -106,6 +129,8 @@ def hopf_orbits(
     *,
     p: Array | None = None,
     n_mesh: int = 64,
+    max_mesh: int | None = None,
+    adapt: bool = True,
     options: ContinuationOptions | None = None,
     amplitude0: float | None = None,
     progress: Callable[[int, float], None] | None = None,
@@ -115,8 +140,10 @@ def hopf_orbits(
 
     The first orbit is ``x_H + eps Re(q e^{i tau})`` (``q`` the critical eigenvector)
     corrected with its projection on ``q`` fixed; continuation then proceeds by
-    pseudo-arclength until a parameter bound, ``max_steps``, or the orbit shrinks back
-    to an equilibrium.
+    pseudo-arclength, the mesh following the orbits, until a parameter bound (status
+    ``"range"``), the orbits shrink into an equilibrium (``"hopf"``, the Hopf point
+    located and recorded as the branch's last point), the period grows without bound
+    (``"homoclinic"``), the mesh limit is reached (``"unresolved"``) or ``max_steps``.
 
     Parameters
     ----------
@@ -126,28 +153,39 @@ def hopf_orbits(
     p : array, optional
         Parameter vector (defaults to the one stored with the Hopf point).
     n_mesh : int
-        Collocation points M (even).
+        Starting (and smallest) number of collocation points M (even).
+    max_mesh : int, optional
+        Largest mesh (default: the largest ``n_mesh * 2^k`` with at most 4096 unknowns
+        ``M * n``).
+    adapt : bool
+        Adapt the mesh (False keeps ``n_mesh``; an unresolved orbit then ends the branch).
     options : ContinuationOptions
         ``ds`` is the first amplitude step (RMS norm over the orbit).
     amplitude0 : float, optional
         Size of the first orbit (default ``options.ds``).
+    resolution_tol : float
+        Largest spectral tail of a reported orbit.
 
     Returns
     -------
     Branch
-        ``kind="periodic"``; ``solutions[:, :M*n]`` mesh values, ``data`` has
-        ``period``, ``amplitude`` (n_points, n) = max_t|x_s(t)|, ``floquet``
-        (n_points, n), ``floquet_max``, ``spectral_tail``; special points
-        "cycle_fold", "period_doubling", "torus", "branch_point".
+        ``kind="periodic"``; ``solutions[:, :M*n+1]`` mesh values and period on the
+        largest mesh of the branch ``M = meta["n_mesh"]`` (orbits computed on coarser
+        meshes are interpolated exactly); ``data`` has ``period``, ``amplitude``
+        (n_points, n) = max_t|x_s(t)|, ``n_mesh`` (the mesh of each orbit),
+        ``floquet`` (n_points, n), ``floquet_log``, ``floquet_max``, ``spectral_tail``;
+        verified special points "cycle_fold", "period_doubling", "torus" (candidates
+        for what could not be verified).
     """
     if hopf.kind != "hopf" or "eigenvector" not in hopf.data:
         raise BifidInputError("hopf_orbits needs a located Hopf point (kind 'hopf' with data).")
     options = options or ContinuationOptions()
+    policy = _policy(n_mesh, max_mesh, resolution_tol, adapt, system.n_states)
     param = hopf.data.get("param_name") or system.default_param
     idx = system.index(param)
     p = jnp.asarray(hopf.data["p"] if p is None else p, dtype=jnp.float64)
     M, n = n_mesh, system.n_states
-    problem = orbit_problem(system.field, M, n)
+    stage = orbit_stage(system, p, idx, M)
     tau = fourier_grid(M)
     q = np.asarray(hopf.data["eigenvector"], dtype=complex)
     q = q / np.max(np.abs(q))
@@ -156,44 +194,31 @@ def hopf_orbits(
     x_h = np.asarray(hopf.solution, dtype=float)
     y_h = np.concatenate([np.tile(x_h, M), [TWO_PI / omega, hopf.param]])
     t0 = np.concatenate([direction.ravel(), [0.0, 0.0]])
-    w = _orbit_weights(M, n)
-    t0 = t0 / np.sqrt(t0 @ (w * t0))
+    t0 = t0 / np.sqrt(t0 @ (stage.weights * t0))
     eps = options.ds if amplitude0 is None else float(amplitude0)
     D = fourier_differentiation_matrix(M)
     args = {"p": p, "idx": jnp.asarray(idx), "dref": jnp.asarray((D @ direction).ravel())}
     y_pred = y_h + eps * t0
-    row = w * t0
-    y1, ok, _, res = correct(problem, y_pred, row, float(row @ y_pred), args,
+    row = stage.weights * t0
+    y1, ok, _, res = correct(stage.problem, y_pred, row, float(row @ y_pred), args,
                              tol=options.newton_tol, max_iter=options.newton_max_iter)
-    if not ok:
+    if not ok or mesh_tail(y1, M, n) > resolution_tol:
         raise ConvergenceError(
             f"Could not converge the first periodic orbit next to the Hopf point at "
             f"{param}={hopf.param:.8g} (residual {res:.1e}); try a smaller first step (ds)."
         )
-    update = _dref_updater(M, n)
-    args = update(y1, args)
-    amp_h = float(np.max(np.abs(direction))) * eps
-
-    def stop(y):
-        V = y[: M * n].reshape(M, n)
-        small = np.max(np.abs(V - V.mean(axis=0))) < 1e-3 * amp_h
-        long = y[M * n] > 100.0 * TWO_PI / omega
-        return bool(small or long)
-
-    result = palc(problem, y1, t0, args, options, weights=w, update_args=update, stop=stop,
-                  progress=progress, correct_start=False)
-    ys = np.vstack([y_h[None, :], result.ys])
-    return _orbit_branch(system, param, p, ys, result, options, M, hopf, resolution_tol)
-
-
-def resample_orbit(values: np.ndarray, n_mesh: int) -> np.ndarray:
-    """Trigonometric interpolation of periodic mesh values ``(M, n)`` onto ``n_mesh`` points."""
-    v = np.asarray(values, dtype=float)
-    M = v.shape[0]
-    c = np.fft.rfft(v, axis=0)
-    if n_mesh < M:
-        c = c[: n_mesh // 2 + 1]
-    return np.fft.irfft(c, n=n_mesh, axis=0) * (n_mesh / M)
+    ends = OrbitEnds(first_amplitude=_centred_amplitude(y1, M, n), first_period=TWO_PI / omega,
+                     n_states=n)
+    run = run_adaptive(lambda m: orbit_stage(system, p, idx, m), y1, t0, policy, options, n,
+                       stop=ends.stop, progress=progress)
+    run.ys.insert(0, y_h)
+    run.meshes.insert(0, M)
+    run.tangents.insert(0, t0)
+    run.tails.insert(0, 0.0)
+    run.args.insert(0, args)
+    run.events = [(i + 1, *rest) for i, *rest in run.events]
+    return orbit_branch(system, param, p, run, options, policy, hopf,
+                        lambda m: orbit_stage(system, p, idx, m))
 
 
 def periodic_orbits(
@@ -204,6 +229,8 @@ def periodic_orbits(
     *,
     p: Array | None = None,
     n_mesh: int | None = None,
+    max_mesh: int | None = None,
+    adapt: bool = True,
     options: ContinuationOptions | None = None,
     progress: Callable[[int, float], None] | None = None,
     resolution_tol: float = 1e-9,
@@ -219,6 +246,8 @@ def periodic_orbits(
         Approximate orbit on an equispaced grid over one period (resampled to ``n_mesh``).
     period : float
         Approximate period.
+    n_mesh, max_mesh, adapt, resolution_tol
+        The mesh (as in :func:`hopf_orbits`; ``n_mesh`` defaults to ``M0``).
     options : ContinuationOptions
         ``direction`` sets the initial direction of the parameter.
 
@@ -236,110 +265,42 @@ def periodic_orbits(
             f"orbit must have shape (M, {system.n_states}), got {orbit.shape}."
         )
     M = n_mesh or orbit.shape[0]
+    policy = _policy(M, max_mesh, resolution_tol, adapt, system.n_states)
     V = resample_orbit(orbit, M) if orbit.shape[0] != M else orbit
     n = system.n_states
-    problem = orbit_problem(system.field, M, n)
-    D = fourier_differentiation_matrix(M)
     lam0 = float(p[idx])
     y0 = np.concatenate([V.ravel(), [period, lam0]])
-    args = {"p": p, "idx": jnp.asarray(idx), "dref": jnp.asarray((D @ V).ravel())}
+    stage = orbit_stage(system, p, idx, M)
     e = np.zeros_like(y0)
     e[-1] = 1.0
-    y0, ok, _, res = correct(problem, y0, e, lam0, args, tol=options.newton_tol, max_iter=30)
+    y0, ok, _, res = correct(stage.problem, y0, e, lam0, stage.args(y0), tol=options.newton_tol,
+                             max_iter=30)
     if not ok:
         raise ConvergenceError(
             f"The starting orbit of {system.name!r} at {param}={lam0:.8g} did not converge "
             f"(residual {res:.1e})."
         )
-    update = _dref_updater(M, n)
-    args = update(y0, args)
+    if mesh_tail(y0, M, n) > resolution_tol:
+        raise ConvergenceError(
+            f"The starting orbit of {system.name!r} at {param}={lam0:.8g} is not resolved on "
+            f"{M} collocation points (spectral tail {mesh_tail(y0, M, n):.1e}); pass a larger "
+            "n_mesh."
+        )
     t0 = np.zeros_like(y0)
     t0[-1] = float(options.direction)
-    w = _orbit_weights(M, n)
-    result = palc(problem, y0, t0, args, options, weights=w, update_args=update,
-                  progress=progress, correct_start=False)
-    pseudo_hopf = SpecialPoint(kind="start", param=lam0, index=0, bracket=(lam0, lam0),
-                               solution=y0, data={})
-    return _orbit_branch(system, param, p, result.ys, result, options, M, pseudo_hopf,
-                         resolution_tol, offset=0)
+    ends = OrbitEnds(first_amplitude=_centred_amplitude(y0, M, n), first_period=float(y0[M * n]),
+                     n_states=n, from_hopf=False)
+    run = run_adaptive(lambda m: orbit_stage(system, p, idx, m), y0, t0, policy, options, n,
+                       stop=ends.stop, progress=progress)
+    start = SpecialPoint(kind="start", param=lam0, index=0, bracket=(lam0, lam0),
+                         solution=y0, data={})
+    return orbit_branch(system, param, p, run, options, policy, start,
+                        lambda m: orbit_stage(system, p, idx, m))
 
 
-def _orbit_branch(system, param, p, ys, result, options, M, hopf, resolution_tol,
-                  offset: int = 1) -> Branch:
-    n = system.n_states
-    idx = system.index(param)
-    orbits = ys[:, : M * n].reshape(-1, M, n)
-    periods = ys[:, M * n]
-    params = ys[:, M * n + 1]
-    ps = np.repeat(np.asarray(p)[None, :], len(ys), axis=0)
-    ps[:, idx] = params
-    mults, stable, fmax = floquet_multipliers(
-        autonomous_rhs(system.field), orbits, periods, ps, autonomous=True
-    )
-    amps = np.array([max_abs(o) for o in orbits])
-    tails = np.array([spectral_tail(o) if np.ptp(o) > 0 else 0.0 for o in orbits])
-    check_resolution(tails[1:], M, resolution_tol, f"periodic orbits of {system.name!r}")
-    specials: list[SpecialPoint] = []
-    # offset = 1 when ys has the Hopf point prepended
-    for i, y_f, prec in result.folds:
-        V = y_f[: M * n].reshape(M, n)
-        specials.append(
-            SpecialPoint(
-                kind="cycle_fold", param=float(y_f[M * n + 1]), index=i + offset,
-                bracket=(float(params[i + offset]), float(params[i + offset + 1])),
-                solution=y_f[: M * n + 1], precision=prec, status="converged",
-                data={"period": float(y_f[M * n]), "amplitude": max_abs(V),
-                      "amplitude_centred": max_abs(V - V.mean(axis=0)),
-                      "amplitude_states": list(system.states)},
-            )
-        )
-    for i in result.branch_points:
-        specials.append(
-            SpecialPoint(kind="branch_point", param=float(params[i + offset]), index=i + offset,
-                         bracket=(float(params[i + offset]), float(params[i + offset + 1])),
-                         solution=ys[i + offset, : M * n + 1], status="guess")
-        )
-    specials.extend(_secondary_from_floquet(mults, params, ys, M, n))
-    specials.sort(key=lambda s: s.index)
-    if hopf.kind == "hopf":  # the Hopf point itself: a zero-amplitude orbit
-        stable[0] = bool(hopf.data.get("criticality") == "supercritical")
-    return Branch(
-        kind="periodic", system=system.name, param=param, params=params,
-        solutions=ys[:, : M * n + 1], stable=stable, special_points=specials,
-        data={"period": periods, "amplitude": amps,
-              # about the orbit's mean, as a rig measures it (offsets removed)
-              "amplitude_centred": np.array([max_abs(o - o.mean(axis=0)) for o in orbits]),
-              "floquet": mults, "floquet_max": fmax, "spectral_tail": tails},
-        p=np.asarray(p), status=result.status, message=result.message, options=options,
-        signals=tuple(system.states),
-        meta={"n_mesh": M, "states": list(system.states), "start_param": hopf.param,
-              "start_kind": hopf.kind},
-    )
-
-
-def _secondary_from_floquet(mults, params, ys, M, n) -> list[SpecialPoint]:
-    """Period-doubling and torus points bracketed by the non-trivial multipliers."""
-    out: list[SpecialPoint] = []
-
-    def crossings(m):
-        m = np.delete(m, int(np.argmin(np.abs(m - 1.0))))
-        outside = np.abs(m) > 1.0
-        pd = np.sum(outside & (np.abs(m.imag) < 1e-8) & (m.real < 0))
-        ns = np.sum(outside & (np.abs(m.imag) >= 1e-8))
-        return pd, ns
-
-    prev = crossings(mults[1]) if len(mults) > 1 else (0, 0)
-    for i in range(2, len(mults)):
-        cur = crossings(mults[i])
-        for kind, a, b in (("period_doubling", prev[0], cur[0]), ("torus", prev[1], cur[1])):
-            if a != b:
-                out.append(
-                    SpecialPoint(kind=kind, param=float(0.5 * (params[i - 1] + params[i])),
-                                 index=i - 1, bracket=(float(params[i - 1]), float(params[i])),
-                                 solution=ys[i, : M * n + 1], status="guess")
-                )
-        prev = cur
-    return out
+def _centred_amplitude(y: np.ndarray, M: int, n: int) -> float:
+    V = np.asarray(y[: M * n]).reshape(M, n)
+    return float(np.max(np.abs(V - V.mean(axis=0))))
 
 
 def continue_from_hopf(
@@ -349,26 +310,35 @@ def continue_from_hopf(
     hi: float,
     *,
     p: Array | None = None,
+    x0: np.ndarray | None = None,
     n_mesh: int = 64,
+    max_mesh: int | None = None,
     eq_options: ContinuationOptions | None = None,
     orbit_options: ContinuationOptions | None = None,
     progress: Callable[[int, float], None] | None = None,
 ) -> tuple[Branch, list[Branch]]:
     """Equilibria over ``[lo, hi]`` and the periodic-orbit branch of every Hopf point found.
 
+    The equilibria start at ``lo`` (``hi < lo`` runs downwards) from the guess ``x0``
+    (default zeros); ``n_mesh`` is the starting mesh of the
+    orbits and ``max_mesh`` its limit (see :func:`hopf_orbits`).
+
     Raises
     ------
     BifidInputError
         If the range contains no Hopf point.
     """
-    if not lo < hi:
-        lo, hi = hi, lo
+    start = lo
+    direction = 1 if hi > lo else -1
+    lo, hi = min(lo, hi), max(lo, hi)
     span = hi - lo
     eq_options = eq_options or ContinuationOptions(
-        ds=span / 50, ds_max=span / 20, ds_min=span * 1e-8, p_min=lo, p_max=hi, max_steps=2000
+        ds=span / 50, ds_max=span / 20, ds_min=span * 1e-8, p_min=lo, p_max=hi, max_steps=2000,
+        direction=direction,
     )
     p = system.param_vector() if p is None else jnp.asarray(p)
-    eq = equilibria(system, param, p=p, start=lo, options=eq_options)
+    eq = (equilibria(system, param, p=p, start=start, options=eq_options) if x0 is None else
+          equilibria(system, param, p=p, x0=x0, start=start, options=eq_options))
     hopfs = [sp for sp in eq.special_points if sp.kind == "hopf" and sp.status == "converged"]
     if not hopfs:
         raise BifidInputError(
@@ -382,6 +352,6 @@ def continue_from_hopf(
         )
         with warnings.catch_warnings():
             warnings.simplefilter("default")
-            branches.append(hopf_orbits(system, h, p=p, n_mesh=n_mesh, options=opts,
-                                        progress=progress))
+            branches.append(hopf_orbits(system, h, p=p, n_mesh=n_mesh, max_mesh=max_mesh,
+                                        options=opts, progress=progress))
     return eq, branches

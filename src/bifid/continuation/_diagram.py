@@ -34,7 +34,7 @@ import numpy as np
 from bifid.continuation._branch import INCOMPLETE, Branch, Candidate, SpecialPoint
 from bifid.continuation._options import ContinuationOptions
 from bifid.errors import BifidInputError
-from bifid.io import atomic_path
+from bifid.io import atomic_write_netcdf
 
 DiagramKind = Literal["bifurcation", "frc", "scurve", "backbone"]
 
@@ -233,12 +233,17 @@ class Diagram:
         out["settings"] = dict(self.settings)
         return _clean(out)
 
+    def _branch_index(self, b: Branch) -> int:
+        """Position of ``b`` in ``branches`` (the ``branch`` of ``ends`` and ``candidates``)."""
+        return next(i for i, x in enumerate(self.branches) if x is b)
+
     def _special_json(self, sp: SpecialPoint, b: Branch) -> dict[str, Any]:
         key = "param" if self.kind == "bifurcation" else self.param_key
         d: dict[str, Any] = {}
         if sp.kind in _SECONDARY:
             d["kind"] = sp.kind
         d[key] = sp.param
+        d["branch"] = self._branch_index(b)
         if sp.kind == "fold" and b.kind == "equilibrium":
             d["state"] = _by_signal(np.asarray(sp.solution)[: len(b.signals)], b.signals)
         for k in _SPECIAL_KEYS.get(sp.kind, ()):
@@ -273,6 +278,7 @@ class Diagram:
                 if k in b.data and k != key:
                     d[k] = b.data[k][i]
             d["stable"] = None if b.stable is None else _stable_json(b.stable[i])
+            d["branch"] = self._branch_index(b)
             if n_mesh is not None:
                 d["n_mesh"] = int(n_mesh[i])
             elif "n_mesh" in b.meta and b.kind in ("periodic", "forced", "backbone"):
@@ -306,9 +312,7 @@ class Diagram:
     # ------------------------------------------------------------------ netCDF
     def save(self, path: str | os.PathLike[str]) -> None:
         """Write the diagram to a netCDF-4 file (one group per branch), atomically."""
-        tree = self._to_datatree()
-        with atomic_path(path) as tmp:
-            tree.to_netcdf(tmp, engine="h5netcdf")
+        atomic_write_netcdf(self._to_datatree(), path)
 
     @classmethod
     def load(cls, path: str | os.PathLike[str]) -> Diagram:

@@ -1,4 +1,4 @@
-"""Forced periodic responses by Fourier collocation: FRCs, S-curves, backbone curves.
+"""Forced periodic responses by Fourier collocation: FRCs and S-curves.
 
 A response of period ``2 pi / Omega`` is represented on ``tau_k = 2 pi k / M`` with
 ``t = tau / Omega``; the unknowns are the mesh values and the continuation parameter
@@ -8,8 +8,16 @@ A response of period ``2 pi / Omega`` is represented on ``tau_k = 2 pi k / M`` w
 
 The phase lag ``psi`` of the observed coordinate's first harmonic behind the force
 ``F cos(Omega t)`` is ``atan2(b_1, a_1)`` with ``x ≈ a_1 cos tau + b_1 sin tau``.
-The backbone curve is the locus of phase quadrature (``psi = pi/2``, i.e. ``a_1 = 0``),
-followed with both ``Omega`` and ``F`` free (thesis §6.2.3.4).
+
+The mesh follows the responses (``_mesh``), and the step control resolves the curve: a
+step is accepted only when no harmonic of the response changed by more than
+:data:`HARMONIC_CHANGE` of itself (complex coefficients, so amplitude and phase both
+count; harmonics below :data:`HARMONIC_FLOOR` of the largest are ignored). Across a
+``k:1`` superharmonic resonance the ``k``-th harmonic turns its phase by about π, so a
+step can never jump over a resonance, however narrow; approaching one, the allowed step
+shrinks in proportion to the distance, so its peak is resolved. Local maxima of the
+observed amplitude are located (``peak`` special points) and verified; folds are
+verified by ``_folds``.
 """
 
 from __future__ import annotations
@@ -23,34 +31,64 @@ import jax.numpy as jnp
 import numpy as np
 
 from bifid.continuation._branch import Branch, SpecialPoint
-from bifid.continuation._floquet import floquet_multipliers
-from bifid.continuation._fourier import (
-    check_resolution,
-    fourier_differentiation_matrix,
-    fourier_grid,
+from bifid.continuation._floquet import floquet
+from bifid.continuation._fourier import fourier_differentiation_matrix, fourier_grid
+from bifid.continuation._mesh import (
+    AdaptiveRun,
+    Arc,
+    MeshPolicy,
+    Stage,
+    default_max_mesh,
+    mesh_tail,
+    on_common_mesh,
+    remesh,
+    residual_check,
+    run_adaptive,
 )
 from bifid.continuation._options import ContinuationOptions
-from bifid.continuation._palc import ZeroProblem, correct, palc
+from bifid.continuation._palc import ZeroProblem, correct
+from bifid.continuation._verify import Check, Findings, Verdict, register_verifier
 from bifid.errors import BifidInputError, ConvergenceError
-from bifid.signal import fourier_coefficients, max_abs, spectral_tail
+from bifid.signal import fourier_coefficients, max_abs
 from bifid.systems import System
 
 Array = jnp.ndarray
 
+#: largest relative change of any harmonic of the response in one step
+HARMONIC_CHANGE = 0.3
+#: harmonics below this fraction of the largest do not limit the step
+HARMONIC_FLOOR = 1e-5
+
 
 @functools.lru_cache(maxsize=32)
-def forced_problem(system: System, n_mesh: int, n_free: int) -> ZeroProblem:
+def forced_rhs(system: System, forcing: tuple[float, ...] | None = None) -> Callable:
+    """``(x, t, p) -> dx``: the system's right-hand side, or with the force along
+    ``forcing`` instead of the system's forcing direction (mode appropriation)."""
+    if forcing is None:
+        return system.rhs
+    b = jnp.asarray(forcing)
+    iF, iOm = system.index("F"), system.index("Omega")
+
+    def rhs(x, t, p):
+        return system.field(x, p) + b * p[iF] * jnp.cos(p[iOm] * t)
+
+    return rhs
+
+
+@functools.lru_cache(maxsize=32)
+def forced_problem(system: System, n_mesh: int, n_free: int,
+                   forcing: tuple[float, ...] | None = None) -> ZeroProblem:
     """Collocation problem of forced responses.
 
     ``y = [v (M*n), lam_1..lam_nfree]``; ``args = {"p", "idx" (n_free,), "obs"}``. With
     ``n_free = 2`` (backbone) the extra equation ``a_1(v_obs) = 0`` (quadrature) is added.
+    ``forcing`` replaces the system's forcing direction (see :func:`forced_rhs`).
     """
     M, n = n_mesh, system.n_states
     D = jnp.asarray(fourier_differentiation_matrix(M))
-    KD = jnp.kron(D, jnp.eye(n))
     tau = jnp.asarray(fourier_grid(M))
     iOm = system.index("Omega")
-    rhs = system.rhs
+    rhs = forced_rhs(system, forcing)
     vrhs = jax.vmap(rhs, in_axes=(0, 0, None))
     vjac = jax.vmap(jax.jacfwd(rhs, argnums=0), in_axes=(0, 0, None))
     cos_row = jnp.cos(tau) * 2.0 / M
@@ -77,6 +115,9 @@ def forced_problem(system: System, n_mesh: int, n_free: int) -> ZeroProblem:
         Om = p[iOm]
         Jk = vjac(V, tau / Om, p)
         block = jnp.einsum("kij,kl->kilj", Jk, jnp.eye(M)).reshape(M * n, M * n)
+        # kron(D, I) built at run time: as a compile-time constant XLA would fold a
+        # (Mn)^2 array, which takes seconds for large meshes
+        KD = jnp.kron(jax.lax.optimization_barrier(D), jnp.eye(n))
         dV = Om * KD - block
         dl = jax.jacfwd(lambda l: core(V, l, args))(lams)  # (M*n, n_free)
         top = jnp.concatenate([dV, dl], axis=1)
@@ -89,64 +130,181 @@ def forced_problem(system: System, n_mesh: int, n_free: int) -> ZeroProblem:
     return ZeroProblem(residual=residual, param_index=M * n, jacobian=jacobian)
 
 
-def _forced_branch(system, kind, param, ys, result, p, idx_free, M, options, observed,
-                   resolution_tol) -> Branch:
+def forced_stage(system: System, M: int, n_free: int, args: dict, span: float,
+                 forcing: tuple[float, ...] | None = None) -> Stage:
+    """The collocation problem of forced responses on ``M`` points (``_mesh.Stage``).
+
+    Arclength weights: mesh values as an RMS over the period, each free parameter
+    relative to ``span``, so a unit step means "the response changes by one unit or the
+    parameter crosses ``span``" whatever the parameter's scale."""
+    n = system.n_states
+    w = np.concatenate([np.full(M * n, 1.0 / M), np.full(n_free, 1.0 / span**2)])
+    return Stage(problem=forced_problem(system, M, n_free, forcing), weights=w,
+                 args=lambda y, prev=None: args)
+
+
+def harmonic_monitor(n: int, change: float = HARMONIC_CHANGE, floor: float = HARMONIC_FLOOR
+                     ) -> Callable[[np.ndarray, np.ndarray, int], float]:
+    """Step control on the harmonic content (module docstring): ``(y, y_new, M) ->
+    factor``, ``< 1`` rejects the step."""
+
+    def monitor(y, y_new, M):
+        c0 = np.fft.rfft(np.asarray(y[: M * n]).reshape(M, n), axis=0)[: M // 2]
+        c1 = np.fft.rfft(np.asarray(y_new[: M * n]).reshape(M, n), axis=0)[: M // 2]
+        size0, size1 = float(np.max(np.abs(c0[1:]))), float(np.max(np.abs(c1[1:])))
+        scale = max(size0, size1)
+        if size0 == 0.0:  # the first step from rest (F = 0): nothing to compare
+            return 1.0
+        ref = np.maximum(np.abs(c0), np.abs(c1))
+        keep = ref > floor * scale
+        rel = float(np.max(np.abs(c1 - c0)[keep] / ref[keep])) if np.any(keep) else 0.0
+        return 1.0 if rel <= change else change / rel
+
+    return monitor
+
+
+def forced_branch(system: System, kind: str, param: str, run: AdaptiveRun, p, idx_free,
+                  options: ContinuationOptions, policy: MeshPolicy, observed: str,
+                  stage_of: Callable[[int], Stage], forcing: tuple[float, ...] | None = None
+                  ) -> Branch:
+    """Assemble the :class:`Branch` of an adaptive run of forced responses."""
     n = system.n_states
     obs = system.state_index(observed)
+    ys, M = on_common_mesh(run.ys, run.meshes, n)
     orbits = ys[:, : M * n].reshape(-1, M, n)
     ps = np.repeat(np.asarray(p)[None, :], len(ys), axis=0)
     for j, i in enumerate(idx_free):
         ps[:, i] = ys[:, M * n + j]
     omega = ps[:, system.index("Omega")]
-    forcing = ps[:, system.index("F")]
+    forcing_amp = ps[:, system.index("F")]
     periods = 2.0 * np.pi / omega
-    mults, stable, fmax = floquet_multipliers(system.rhs, orbits, periods, ps, autonomous=False)
+    fl = floquet(forced_rhs(system, forcing),
+                 [np.asarray(y[: m * n]).reshape(m, n)
+                  for y, m in zip(run.ys, run.meshes, strict=True)],
+                 periods, ps, autonomous=False)
+    mults, logm, label = fl.multipliers, fl.log_moduli, fl.stable()
+    stable = label.astype(bool) if np.all(np.isfinite(label)) else label
     amps = np.array([max_abs(o) for o in orbits])
     _, a_k, b_k = fourier_coefficients(np.moveaxis(orbits[:, :, obs], 1, 0))
-    a1, b1 = a_k[0], b_k[0]
-    phase = np.arctan2(b1, a1)
+    phase = np.arctan2(b_k[0], a_k[0])
     if kind != "backbone":
         # continuous lag in (-pi/2, 3pi/2]
         phase = np.where(phase < -np.pi / 2, phase + 2 * np.pi, phase)
-    tails = np.array([spectral_tail(o) for o in orbits])
-    check_resolution(tails, M, resolution_tol, f"forced responses of {system.name!r}")
-    specials: list[SpecialPoint] = []
-    pidx = 0
-    for i, y_f, prec in result.folds:
-        V = y_f[: M * n].reshape(M, n)
-        specials.append(
-            SpecialPoint(
-                kind="fold", param=float(y_f[M * n + pidx]), index=i,
-                bracket=(float(ys[i, M * n]), float(ys[i + 1, M * n])),
-                solution=y_f, precision=prec, status="converged",
-                data={"amplitude": float(max_abs(V[:, obs])), "omega": float(
-                    y_f[M * n] if param == "Omega" else p[system.index("Omega")]),
-                      "forcing": float(y_f[M * n] if param == "F" else p[system.index("F")])},
-            )
-        )
-    for i in result.branch_points:
-        specials.append(
-            SpecialPoint(kind="branch_point", param=float(ys[i, M * n]), index=i,
-                         bracket=(float(ys[i, M * n]), float(ys[i + 1, M * n])),
-                         solution=ys[i], status="guess")
-        )
+    findings = Findings()
+    params = ys[:, M * n]
+    _report_folds(findings, system, run, params, p, stage_of, obs)
+    if kind == "forced":
+        _report_peaks(findings, system, run, params, stage_of, obs)
+    residual = np.array([np.max(np.abs(np.asarray(stage_of(m).problem.residual(
+        jnp.asarray(y), a)))) for y, m, a in zip(run.ys, run.meshes, run.args, strict=True)])
+    tails = np.asarray(run.tails)
     return Branch(
-        kind=kind, system=system.name, param=param, params=ys[:, M * n],
-        solutions=ys[:, : M * n], stable=stable, special_points=specials,
+        kind=kind, system=system.name, param=param, params=params,
+        solutions=ys[:, : M * n], stable=stable, special_points=findings.sorted_points(),
         data={"amplitude": amps, "observed_amplitude": amps[:, obs], "phase": phase,
-              "omega": omega, "forcing": forcing, "period": periods, "floquet": mults,
-              "floquet_max": fmax, "spectral_tail": tails},
-        p=np.asarray(p), status=result.status, message=result.message, options=options,
+              "omega": omega, "forcing": forcing_amp, "period": periods, "floquet": mults,
+              "floquet_log": logm, "floquet_max": np.exp(np.nanmax(logm, axis=1)),
+              "spectral_tail": tails, "n_mesh": np.asarray(run.meshes)},
+        p=np.asarray(p), status=run.status, message=run.message, options=options,
         signals=tuple(system.states),
-        meta={"n_mesh": M, "states": list(system.states), "observed": observed},
+        meta={"n_mesh": int(M), "states": list(system.states), "observed": observed,
+              "max_mesh": policy.max_mesh, "resolution_tol": policy.tol},
+        verification={"residual": residual, "spectral_tail": tails},
+        candidates=findings.candidates,
     )
 
 
-def _weights(M: int, n: int, span: float) -> np.ndarray:
-    """Arclength weights: mesh values as an RMS over the period, the parameter relative to
-    its range, so a unit step means "the response changes by one unit or the parameter
-    crosses its whole range" whatever the parameter's scale."""
-    return np.concatenate([np.full(M * n, 1.0 / M), [1.0 / span**2]])
+def _report_folds(findings, system, run, params, p, stage_of, obs) -> None:
+    n = system.n_states
+    iOm, iF = system.index("Omega"), system.index("F")
+    for i, kind, y_f, prec, M in run.events:
+        if kind != "fold":
+            continue
+        bracket = (params[i], params[i + 1])
+        if y_f is None:
+            findings.flag("fold", bracket, "the parameter turned between these points but the "
+                          "fold could not be located")
+            continue
+        stage = stage_of(M)
+        q = np.asarray(stage.args(y_f)["p"]).copy()
+        q[np.asarray(stage.args(y_f)["idx"])] = y_f[M * n:]
+        V = np.asarray(y_f[: M * n]).reshape(M, n)
+        point = SpecialPoint(kind="fold", param=float(y_f[M * n]), index=i, bracket=bracket,
+                             solution=np.asarray(y_f), precision=prec,
+                             data={"amplitude": float(max_abs(V[:, obs])),
+                                   "omega": float(q[iOm]), "forcing": float(q[iF]),
+                                   "n_mesh": int(M)})
+        findings.confirm("fold", bracket, lambda point=point: point,
+                         context={"problem": stage.problem, "args": stage.args(y_f),
+                                  "weights": stage.weights, "y": y_f}, index=i)
+
+
+@register_verifier("peak")
+def verify_peak(point: SpecialPoint, context) -> Verdict:
+    """A local maximum of the observed amplitude: on the curve, and no larger than the
+    amplitude at its located neighbours (``context["neighbours"]``)."""
+    a = float(point.data["amplitude"])
+    excess = max(0.0, max(context["neighbours"]) - a)
+    return Verdict((residual_check(context),
+                    Check.at_most("neighbour_excess", excess, 1e-10 * max(1.0, a))))
+
+
+def _report_peaks(findings, system, run, params, stage_of, obs) -> None:
+    """Locate each interior local maximum of the observed amplitude (golden-section
+    search along the arcs on both sides of the largest point)."""
+    n = system.n_states
+    amp = np.array([max_abs(np.asarray(y[: m * n]).reshape(m, n)[:, obs])
+                    for y, m in zip(run.ys, run.meshes, strict=True)])
+    for i in range(1, len(amp) - 1):
+        if not (amp[i] > amp[i - 1] and amp[i] >= amp[i + 1]):
+            continue
+        best = (amp[i], run.ys[i], run.meshes[i], 0.0)
+        for j in (i - 1, i):
+            found = _golden_max(system, run, j, stage_of, obs)
+            if found is not None and found[0] > best[0]:
+                best = found
+        a, y, M, prec = best
+        bracket = (params[i - 1], params[i + 1])
+        point = SpecialPoint(kind="peak", param=float(y[M * n]), index=i, bracket=bracket,
+                             solution=np.asarray(y), precision=prec,
+                             data={"amplitude": float(a), "n_mesh": int(M)})
+        stage = stage_of(M)
+        findings.confirm("peak", bracket, lambda point=point: point,
+                         context={"problem": stage.problem, "args": stage.args(y), "y": y,
+                                  "neighbours": (amp[i - 1], amp[i + 1])}, index=i)
+
+
+def _golden_max(system, run, j, stage_of, obs, iters: int = 40):
+    """Largest observed amplitude on the arc between points ``j`` and ``j + 1``."""
+    n = system.n_states
+    M = max(run.meshes[j], run.meshes[j + 1])
+    arc = Arc(stage_of(M), run.ys[j], run.meshes[j], run.ys[j + 1], run.meshes[j + 1], n)
+    if arc.length == 0.0:
+        return None
+
+    def value(s):
+        y = arc.point(s)
+        if y is None or mesh_tail(y, M, n) > 1e-6:
+            return -math.inf, None
+        return float(max_abs(np.asarray(y[: M * n]).reshape(M, n)[:, obs])), y
+
+    g = (math.sqrt(5.0) - 1.0) / 2.0
+    a, b = 0.0, arc.length
+    c, e = b - g * (b - a), a + g * (b - a)
+    (fc, yc), (fe, ye) = value(c), value(e)
+    for _ in range(iters):
+        if fc >= fe:
+            b, e, fe, ye = e, c, fc, yc
+            c = b - g * (b - a)
+            fc, yc = value(c)
+        else:
+            a, c, fc, yc = c, e, fe, ye
+            e = a + g * (b - a)
+            fe, ye = value(e)
+        if b - a < 1e-10 * arc.length:
+            break
+    fbest, ybest = (fc, yc) if fc >= fe else (fe, ye)
+    return (fbest, ybest, M, abs(b - a)) if ybest is not None else None
 
 
 def _require_forced(system: System) -> None:
@@ -157,29 +315,11 @@ def _require_forced(system: System) -> None:
         )
 
 
-def _check_range(name: str, lo: float, hi: float) -> tuple[float, float]:
+def check_range(name: str, lo: float, hi: float) -> tuple[float, float]:
+    """A parameter range of two different finite numbers."""
     if not (math.isfinite(lo) and math.isfinite(hi)) or lo == hi:
         raise BifidInputError(f"{name} must be two different finite numbers, got {lo!r}, {hi!r}.")
     return float(lo), float(hi)
-
-
-def _start_solution(system, problem, p, lam_index, lam0, M, options, what):
-    """Newton from the linear response (rest for F = 0) at fixed parameter ``lam0``."""
-    n = system.n_states
-    x_lin = _linear_response(system, p, M)
-    y0 = np.concatenate([x_lin.ravel(), [lam0]])
-    e = np.zeros_like(y0)
-    e[-1] = 1.0
-    args = {"p": jnp.asarray(p), "idx": jnp.asarray([lam_index]),
-            "obs": jnp.asarray(system.state_index(system.observed))}
-    y, ok, _, res = correct(problem, y0, e, lam0, args, tol=options.newton_tol, max_iter=30)
-    if not ok:
-        raise ConvergenceError(
-            f"No periodic response of {system.name!r} found at the start of the {what} "
-            f"(residual {res:.1e}); start further from resonance or at a smaller forcing."
-        )
-    assert y.shape[0] == M * n + 1
-    return y, args
 
 
 def _linear_response(system: System, p: Array, M: int) -> np.ndarray:
@@ -193,6 +333,12 @@ def _linear_response(system: System, p: Array, M: int) -> np.ndarray:
     return np.real(np.outer(np.exp(1j * tau), X))
 
 
+def mesh_policy(n_mesh: int, max_mesh: int | None, tol: float, adapt: bool, n: int
+                ) -> MeshPolicy:
+    """The mesh policy of a forced run (``max_mesh`` default: ``default_max_mesh``)."""
+    limit = max_mesh if max_mesh is not None else default_max_mesh(n_mesh, n)
+    return MeshPolicy(n_mesh=n_mesh, max_mesh=max(limit, n_mesh), tol=tol, adapt=adapt)
+
 
 def frc(
     system: System,
@@ -201,6 +347,8 @@ def frc(
     *,
     p: Array | None = None,
     n_mesh: int = 64,
+    max_mesh: int | None = None,
+    adapt: bool = True,
     options: ContinuationOptions | None = None,
     observed: str | None = None,
     progress: Callable[[int, float], None] | None = None,
@@ -208,16 +356,19 @@ def frc(
 ) -> Branch:
     """Frequency response curve: continuation in ``Omega`` at fixed forcing ``F``.
 
+    ``n_mesh`` is the starting (and smallest) mesh, ``max_mesh`` the limit (default: at
+    most 4096 unknowns ``M * n``), ``adapt=False`` keeps ``n_mesh``.
+
     Returns
     -------
     Branch
         ``kind="forced"``, ``param="Omega"``; data ``observed_amplitude``, ``phase``,
-        ``floquet``; special points "fold".
+        ``floquet``, ``n_mesh``; verified special points "fold" and "peak".
     """
     if not math.isfinite(forcing):
         raise BifidInputError(f"forcing must be finite, got {forcing!r}.")
-    return _one_parameter(system, "Omega", omega_range, {"F": forcing}, p, n_mesh, options,
-                          observed, progress, resolution_tol, "FRC")
+    return _one_parameter(system, "Omega", omega_range, {"F": forcing}, p, n_mesh, max_mesh,
+                          adapt, options, observed, progress, resolution_tol, "FRC")
 
 
 def scurve(
@@ -227,24 +378,29 @@ def scurve(
     *,
     p: Array | None = None,
     n_mesh: int = 64,
+    max_mesh: int | None = None,
+    adapt: bool = True,
     options: ContinuationOptions | None = None,
     observed: str | None = None,
     progress: Callable[[int, float], None] | None = None,
     resolution_tol: float = 1e-9,
 ) -> Branch:
-    """S-curve: continuation in the forcing amplitude ``F`` at fixed ``Omega``."""
+    """S-curve: continuation in the forcing amplitude ``F`` at fixed ``Omega`` (mesh
+    options as in :func:`frc`)."""
     if not (math.isfinite(omega) and omega > 0):
         raise BifidInputError(f"omega must be a positive finite number, got {omega!r}.")
-    return _one_parameter(system, "F", forcing_range, {"Omega": omega}, p, n_mesh, options,
-                          observed, progress, resolution_tol, "S-curve")
+    return _one_parameter(system, "F", forcing_range, {"Omega": omega}, p, n_mesh, max_mesh,
+                          adapt, options, observed, progress, resolution_tol, "S-curve")
 
 
-def _one_parameter(system, param, rng, fixed, p, n_mesh, options, observed, progress,
-                   resolution_tol, what) -> Branch:
+def _one_parameter(system, param, rng, fixed, p, n_mesh, max_mesh, adapt, options, observed,
+                   progress, resolution_tol, what) -> Branch:
     """Continuation of forced responses in ``param`` ("Omega" or "F") over ``rng``."""
     _require_forced(system)
-    lo, hi = _check_range(f"{'omega' if param == 'Omega' else 'forcing'} range", *rng)
+    lo, hi = check_range(f"{'omega' if param == 'Omega' else 'forcing'} range", *rng)
     direction = 1 if hi > lo else -1
+    n = system.n_states
+    policy = mesh_policy(n_mesh, max_mesh, resolution_tol, adapt, n)
     p = system.param_vector() if p is None else jnp.asarray(p, dtype=jnp.float64)
     for name, value in fixed.items():
         p = p.at[system.index(name)].set(value)
@@ -252,91 +408,36 @@ def _one_parameter(system, param, rng, fixed, p, n_mesh, options, observed, prog
     p = p.at[i_lam].set(lo)
     options = options or ContinuationOptions(ds=0.01, ds_min=1e-10, ds_max=0.1, max_steps=2000)
     options = options.with_(p_min=min(lo, hi), p_max=max(lo, hi), direction=direction)
-    problem = forced_problem(system, n_mesh, 1)
-    y0, args = _start_solution(system, problem, p, i_lam, lo, n_mesh, options, what)
+    args = {"p": jnp.asarray(p), "idx": jnp.asarray([i_lam]),
+            "obs": jnp.asarray(system.state_index(system.observed))}
+    span = abs(hi - lo)
+
+    def stage_of(M):
+        return forced_stage(system, M, 1, args, span)
+
+    M = n_mesh
+    y0 = np.concatenate([_linear_response(system, p, M).ravel(), [lo]])
+    e = np.zeros_like(y0)
+    e[-1] = 1.0
+    y0, ok, _, res = correct(stage_of(M).problem, y0, e, lo, args, tol=options.newton_tol,
+                             max_iter=30)
+    while ok and mesh_tail(y0, M, n) > resolution_tol and policy.finer(M):
+        y1 = remesh(y0, M, 2 * M, n)
+        M *= 2
+        e = np.zeros_like(y1)
+        e[-1] = 1.0
+        y0, ok, _, res = correct(stage_of(M).problem, y1, e, lo, args,
+                                 tol=options.newton_tol, max_iter=30)
+    if not ok or mesh_tail(y0, M, n) > resolution_tol:
+        raise ConvergenceError(
+            f"No resolved periodic response of {system.name!r} found at the start of the "
+            f"{what} (residual {res:.1e}, spectral tail {mesh_tail(y0, M, n):.1e} on {M} "
+            "points); start further from resonance, at a smaller forcing or with a larger "
+            "mesh limit."
+        )
     t0 = np.zeros_like(y0)
     t0[-1] = direction
-    result = palc(problem, y0, t0, args, options, weights=_weights(n_mesh, system.n_states,
-                                                                    abs(hi - lo)),
-                  progress=progress, correct_start=False)
-    return _forced_branch(system, "forced", param, result.ys, result, p, [i_lam], n_mesh,
-                          options, observed or system.observed, resolution_tol)
-
-
-def backbone(
-    system: System,
-    amplitude_range: tuple[float, float],
-    *,
-    p: Array | None = None,
-    n_mesh: int = 64,
-    mode: int = 0,
-    options: ContinuationOptions | None = None,
-    observed: str | None = None,
-    progress: Callable[[int, float], None] | None = None,
-    resolution_tol: float = 1e-9,
-) -> Branch:
-    """Backbone curve as the locus of phase quadrature (lag ``pi/2``), thesis §6.2.3.4.
-
-    Starts at the linear resonance of mode ``mode`` (modes ordered by frequency) with the
-    forcing that gives amplitude ``amplitude_range[0]``, then follows the quadrature
-    locus with ``Omega`` and ``F`` free until the observed amplitude exceeds
-    ``amplitude_range[1]``.
-
-    Returns
-    -------
-    Branch
-        ``kind="backbone"``, ``param="F"``; data ``omega``, ``forcing``,
-        ``observed_amplitude``.
-    """
-    _require_forced(system)
-    a_lo, a_hi = _check_range("amplitude range", *amplitude_range)
-    a_lo, a_hi = min(a_lo, a_hi), max(a_lo, a_hi)
-    if a_lo <= 0:
-        raise BifidInputError(f"the amplitude range must be positive, got {amplitude_range}.")
-    p = system.param_vector() if p is None else jnp.asarray(p, dtype=jnp.float64)
-    n = system.n_states
-    M = n_mesh
-    obs_name = observed or system.observed
-    obs = system.state_index(obs_name)
-    J = np.asarray(jax.jacfwd(system.field)(jnp.zeros(n), p))
-    ev = np.linalg.eigvals(J)
-    freqs = np.sort(np.unique(np.round(np.abs(ev.imag[ev.imag > 1e-12]), 12)))
-    if mode >= len(freqs):
-        raise BifidInputError(f"{system.name!r} has {len(freqs)} oscillatory modes; mode={mode}.")
-    Om0 = float(freqs[mode])
-    b = np.asarray(system.forcing_direction(p))
-    X = np.linalg.solve(1j * Om0 * np.eye(n) - J, b)
-    F0 = a_lo / abs(X[obs])
-    p = p.at[system.index("Omega")].set(Om0).at[system.index("F")].set(F0)
-    tau = fourier_grid(M)
-    V0 = np.real(np.outer(np.exp(1j * tau), X * F0))
-    iF, iOm = system.index("F"), system.index("Omega")
-    problem = forced_problem(system, M, 2)
-    args = {"p": p, "idx": jnp.asarray([iF, iOm]), "obs": jnp.asarray(obs)}
-    y0 = np.concatenate([V0.ravel(), [F0, Om0]])
-    e = np.zeros_like(y0)
-    e[M * n] = 1.0
-    y0, ok, _, res = correct(problem, y0, e, F0, args, tol=1e-10, max_iter=30)
-    if not ok:
-        raise ConvergenceError(
-            f"Could not start the backbone of {system.name!r} at amplitude {a_lo:g} "
-            f"(residual {res:.1e}); try a smaller start amplitude."
-        )
-    options = options or ContinuationOptions(
-        ds=a_lo, ds_min=a_lo * 1e-8, ds_max=(a_hi - a_lo) / 20, max_steps=2000,
-        detect_folds=False
-    )
-    w = np.concatenate([np.full(M * n, 1.0 / M), [1.0, 1.0]])
-    t0 = np.zeros_like(y0)
-    t0[M * n] = 1.0
-
-    def stop(y):
-        return bool(np.max(np.abs(y[obs : M * n : n])) > a_hi)
-
-    result = palc(problem, y0, t0, args, options, weights=w, stop=stop, progress=progress,
-                  correct_start=False)
-    br = _forced_branch(system, "backbone", "F", result.ys, result, p, [iF, iOm], M, options,
-                        obs_name, resolution_tol)
-    br.meta["mode"] = mode
-    br.meta["linear_frequency"] = Om0
-    return br
+    run = run_adaptive(stage_of, y0, t0, policy, options, n, M0=M,
+                       monitor=harmonic_monitor(n), progress=progress)
+    return forced_branch(system, "forced", param, run, p, [i_lam], options, policy,
+                         observed or system.observed, stage_of)

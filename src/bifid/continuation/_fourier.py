@@ -9,11 +9,10 @@ and spectra of mesh values are in :mod:`bifid.signal`.
 from __future__ import annotations
 
 import functools
-import warnings
 
 import numpy as np
 
-from bifid.errors import BifidInputError, ResolutionWarning
+from bifid.errors import BifidInputError
 
 
 @functools.lru_cache(maxsize=32)
@@ -48,16 +47,3 @@ def _check_mesh(n_mesh: int) -> None:
     if not isinstance(n_mesh, (int, np.integer)) or n_mesh < 8 or n_mesh % 2:
         raise BifidInputError(f"n_mesh must be an even integer >= 8, got {n_mesh!r}.")
 
-
-def check_resolution(tails: np.ndarray, n_mesh: int, tol: float, what: str) -> None:
-    """Warn (ResolutionWarning) when a branch's spectral tail exceeds ``tol``."""
-    worst = float(np.max(tails)) if len(tails) else 0.0
-    if worst > tol:
-        warnings.warn(
-            f"{what}: the top of the Fourier spectrum is {worst:.1e} of its peak on "
-            f"{n_mesh} collocation points (tolerance {tol:.0e}); the mesh is too coarse "
-            "or the collocation shows a spurious resonance. Increase n_mesh "
-            f"(e.g. --mesh {2 * n_mesh}).",
-            ResolutionWarning,
-            stacklevel=3,
-        )

@@ -1,0 +1,234 @@
+"""A branch of periodic orbits from an adaptive run: Floquet multipliers, special points,
+and why it ended.
+
+Branch ends are events, recorded in ``Branch.status`` (``END_REASONS``):
+
+* ``"hopf"`` — the orbits shrink into an equilibrium: the run stops when the centred
+  amplitude falls below :data:`HOPF_END_FRACTION` of the branch's largest while still
+  decreasing (or a step crosses zero amplitude), the Hopf point is located and verified
+  from the last orbit's mean (``locate_hopf``), and it is the branch's last point (a
+  zero-amplitude orbit, like the first point of a branch born at a Hopf point);
+* ``"homoclinic"`` — the period grows without bound: it exceeds
+  :data:`HOMOCLINIC_PERIOD_FACTOR` times the branch's smallest period, or it keeps
+  growing while the parameter has settled (:func:`homoclinic_signature`), also when the
+  branch cannot go on (mesh limit, step budget, corrector failure); the largest period
+  is in the message and in ``meta["max_period"]``;
+* ``"range"`` — a bound of the parameter range.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import jax.numpy as jnp
+import numpy as np
+
+from bifid.continuation._branch import Branch, SpecialPoint
+from bifid.continuation._floquet import Floquet, autonomous_rhs, floquet
+from bifid.continuation._mesh import AdaptiveRun, MeshPolicy, Stage, on_common_mesh
+from bifid.continuation._options import ContinuationOptions
+from bifid.continuation._orbit_bifurcations import BracketContext, find_orbit_special_points
+from bifid.continuation._verify import LOCATION_ERRORS, Findings
+from bifid.signal import max_abs
+from bifid.systems import System
+
+#: the run ends at a Hopf point when the centred amplitude falls below this fraction of
+#: the branch's largest while decreasing
+HOPF_END_FRACTION = 0.02
+#: the run ends as a homoclinic approach when the period exceeds this multiple of the
+#: branch's smallest period
+HOMOCLINIC_PERIOD_FACTOR = 50.0
+#: relative change of the parameter over the window below which it has settled
+HOMOCLINIC_SETTLED = 1e-8
+#: points examined for the signature of a homoclinic approach
+_HOMOCLINIC_WINDOW = 6
+
+
+def _centred(V: np.ndarray) -> float:
+    return float(np.max(np.abs(V - V.mean(axis=0))))
+
+
+@dataclass
+class OrbitEnds:
+    """Stopping rules of an orbit branch (module docstring); ``stop`` is the hook of
+    :func:`bifid.continuation._mesh.run_adaptive`."""
+
+    first_amplitude: float
+    first_period: float
+    n_states: int
+    from_hopf: bool = True
+    amplitudes: list[float] = field(default_factory=list)
+    periods: list[float] = field(default_factory=list)
+    params: list[float] = field(default_factory=list)
+
+    def stop(self, y, M, ys, meshes) -> str | None:
+        n = self.n_states
+        a = _centred(np.asarray(y[: M * n]).reshape(M, n))
+        T = float(y[M * n])
+        self.amplitudes.append(a)
+        self.periods.append(T)
+        self.params.append(float(y[M * n + 1]))
+        peak = max([*self.amplitudes, self.first_amplitude])
+        prev = self.amplitudes[-2] if len(self.amplitudes) > 1 else self.first_amplitude
+        if peak > 10 * self.first_amplitude and a < HOPF_END_FRACTION * peak and a < prev:
+            return "hopf"
+        if T > HOMOCLINIC_PERIOD_FACTOR * min([*self.periods, self.first_period]) or \
+                homoclinic_signature(np.array(self.params), np.array(self.periods)):
+            return "homoclinic"
+        return None
+
+
+def homoclinic_signature(params: np.ndarray, periods: np.ndarray) -> bool:
+    """The last points of a branch look like an approach to a homoclinic orbit: over
+    the last :data:`_HOMOCLINIC_WINDOW` points the period grew monotonically by at least
+    2 % to at least twice the branch's smallest, while the parameter settled to
+    :data:`HOMOCLINIC_SETTLED` of its range (at a fold the parameter turns instead, and
+    its change over steps that change the period by 2 % is far larger)."""
+    k = _HOMOCLINIC_WINDOW
+    if len(periods) < k + 1:
+        return False
+    T, lam = periods[-k:], params[-k:]
+    if not np.all(np.diff(T) > 0) or T[-1] < 2.0 * np.min(periods) or T[-1] < 1.02 * T[0]:
+        return False
+    scale = max(float(np.ptp(params)), abs(float(lam[-1])), 1e-300)
+    return bool(abs(lam[-1] - lam[0]) <= HOMOCLINIC_SETTLED * scale)
+
+
+def orbit_branch(system: System, param: str, p, run: AdaptiveRun, options: ContinuationOptions,
+                 policy: MeshPolicy, start: SpecialPoint, stage_of: Callable[[int], Stage]
+                 ) -> Branch:
+    """Assemble the :class:`Branch` of an adaptive orbit run (``start`` is the Hopf point
+    the branch was born at, or a ``kind="start"`` placeholder; ``stage_of(M)`` the
+    collocation problem on ``M`` points)."""
+    n = system.n_states
+    idx = system.index(param)
+    status, message = run.status, run.message
+    meta: dict = {}
+    # a step across zero amplitude shows up as a "fold" at a vanishing orbit: a Hopf end
+    cut = _zero_amplitude_fold(run, n)
+    if cut is not None:
+        _truncate(run, cut + 1)
+        run.stop_reason = "hopf"
+    if run.stop_reason == "hopf":
+        # the last step, into the Hopf point, may cross zero amplitude: not a fold
+        last = len(run.ys) - 2
+        run.events = [e for e in run.events if not (e[1] == "fold" and e[0] >= last)]
+        status, message = _hopf_end(system, param, p, run, n, meta)
+    else:
+        params_ = np.array([y[m * n + 1] for y, m in zip(run.ys, run.meshes, strict=True)])
+        periods_ = np.array([y[m * n] for y, m in zip(run.ys, run.meshes, strict=True)])
+        if run.stop_reason == "homoclinic" or (
+            status in ("unresolved", "steps", "failed")
+            and homoclinic_signature(params_, periods_)
+        ):
+            k = int(np.argmax(periods_))
+            status = "homoclinic"
+            message = (f"the period grows without bound (largest {periods_[k]:.8g} at "
+                       f"{param}={params_[k]:.10g}): a homoclinic orbit near "
+                       f"{param} ≈ {params_[-1]:.8g}")
+            meta["max_period"] = float(periods_[k])
+    ys, M = on_common_mesh(run.ys, run.meshes, n)
+    meshes = np.asarray(run.meshes)
+    orbits = ys[:, : M * n].reshape(-1, M, n)
+    periods = ys[:, M * n]
+    params = ys[:, M * n + 1]
+    fl = _branch_floquet(system, p, idx, run, n)
+    amps = np.array([max_abs(o) for o in orbits])
+    centred = np.array([_centred(o) for o in orbits])
+    zero = centred <= 1e-12 * max(1.0, float(np.max(np.abs(orbits))))
+    findings = Findings()
+    ctx = BracketContext(system=system, param=param, p=p, idx=idx, run=run,
+                         stage_of=stage_of, floquet=fl, zero=zero)
+    find_orbit_special_points(findings, ctx, params)
+    label = fl.stable()
+    if start.kind == "hopf" and zero[0]:
+        label[0] = float(start.data.get("criticality") == "supercritical")
+    if zero[-1] and len(zero) > 1 and status == "hopf":
+        label[-1] = label[-2] if np.isfinite(label[-2]) else np.nan
+    stable = np.nan_to_num(label, nan=0.0).astype(bool) if np.all(np.isfinite(label)) else label
+    residual = np.array([np.max(np.abs(np.asarray(stage_of(m).problem.residual(
+        jnp.asarray(y), a)))) for y, m, a in zip(run.ys, run.meshes, run.args, strict=True)])
+    meta.update({"n_mesh": int(M), "states": list(system.states), "start_param": start.param,
+                 "start_kind": start.kind, "max_mesh": policy.max_mesh,
+                 "resolution_tol": policy.tol})
+    return Branch(
+        kind="periodic", system=system.name, param=param, params=params,
+        solutions=ys[:, : M * n + 1], stable=stable,
+        special_points=findings.sorted_points(),
+        data={"period": periods, "amplitude": amps,
+              # about the orbit's mean, as a rig measures it (offsets removed)
+              "amplitude_centred": centred,
+              "floquet": fl.multipliers, "floquet_log": fl.log_moduli,
+              "floquet_max": fl.floquet_max, "spectral_tail": np.asarray(run.tails),
+              "n_mesh": meshes},
+        p=np.asarray(p), status=status, message=message, options=options,
+        signals=tuple(system.states), meta=meta,
+        verification={"residual": residual, "spectral_tail": np.asarray(run.tails)},
+        candidates=findings.candidates,
+    )
+
+
+def _branch_floquet(system, p, idx, run: AdaptiveRun, n: int) -> Floquet:
+    """Multipliers of every orbit, each on its own mesh, in one batch (zero-amplitude
+    orbits: NaN)."""
+    N = len(run.ys)
+    mults = np.full((N, n), np.nan, dtype=complex)
+    logm = np.full((N, n), np.nan)
+    trivial = np.zeros(N, int)
+    ok = np.zeros(N, bool)
+    V = [np.asarray(y[: m * n]).reshape(m, n) for y, m in zip(run.ys, run.meshes, strict=True)]
+    rows = [i for i in range(N) if _centred(V[i]) > 0]
+    if rows:
+        ps = np.repeat(np.asarray(p)[None, :], len(rows), axis=0)
+        ps[:, idx] = [run.ys[i][run.meshes[i] * n + 1] for i in rows]
+        periods = np.array([run.ys[i][run.meshes[i] * n] for i in rows])
+        fl = floquet(autonomous_rhs(system.field), [V[i] for i in rows], periods, ps,
+                     autonomous=True)
+        mults[rows], logm[rows], trivial[rows], ok[rows] = (fl.multipliers, fl.log_moduli,
+                                                            fl.trivial, fl.ok)
+    return Floquet(mults, logm, trivial, ok)
+
+
+def _zero_amplitude_fold(run: AdaptiveRun, n: int) -> int | None:
+    """Index of a "fold" event whose located orbit has (nearly) vanished."""
+    peak = max(_centred(np.asarray(y[: m * n]).reshape(m, n))
+               for y, m in zip(run.ys, run.meshes, strict=True))
+    for i, kind, y_e, _, M in run.events:
+        if kind == "fold" and y_e is not None:
+            a = _centred(np.asarray(y_e[: M * n]).reshape(M, n))
+            if a < 1e-3 * peak:
+                return i
+    return None
+
+
+def _truncate(run: AdaptiveRun, k: int) -> None:
+    for name in ("ys", "meshes", "tangents", "tails", "args"):
+        setattr(run, name, getattr(run, name)[:k])
+    run.events = [e for e in run.events if e[0] < k - 1]
+
+
+def _hopf_end(system, param, p, run: AdaptiveRun, n: int, meta: dict) -> tuple[str, str]:
+    """Locate the Hopf point the orbits shrink into and append it as the last point."""
+    from bifid.continuation._hopf import locate_hopf
+
+    M = run.meshes[-1]
+    y = run.ys[-1]
+    V = np.asarray(y[: M * n]).reshape(M, n)
+    lam = float(y[M * n + 1])
+    try:
+        h = locate_hopf(system, param, V.mean(axis=0), lam, jnp.asarray(p),
+                        omega_guess=2 * np.pi / float(y[M * n]))
+    except LOCATION_ERRORS as exc:
+        return "hopf", (f"the orbits shrink into an equilibrium near {param}={lam:.8g} "
+                        f"(its Hopf point could not be located: {exc})")
+    x_h = np.asarray(h.solution, dtype=float)
+    run.ys.append(np.concatenate([np.tile(x_h, M), [2 * np.pi / h.data["omega"], h.param]]))
+    run.meshes.append(M)
+    run.tangents.append(run.tangents[-1])
+    run.tails.append(0.0)
+    run.args.append(run.args[-1])
+    meta["end_hopf"] = {"param": float(h.param), "omega": float(h.data["omega"]),
+                        "verification": dict(h.verification)}
+    return "hopf", ("the orbits shrink into the equilibrium at the Hopf point "
+                    f"{param}={h.param:.10g}")
