@@ -43,7 +43,19 @@ PlotOpt = Annotated[Path | None, typer.Option("--plot", help="Write a figure (PN
 OutOpt = Annotated[
     Path | None, typer.Option("--out", help="Save the branch as a netCDF dataset.")
 ]
-MeshOpt = Annotated[int, typer.Option("--mesh", help="Fourier collocation points (even).")]
+MeshOpt = Annotated[
+    int, typer.Option("--mesh", help="Fourier collocation points to start with (even, >= 8).")
+]
+MaxMeshOpt = Annotated[
+    int | None,
+    typer.Option("--max-mesh", help="Largest mesh the orbits may need (even; default: at "
+                 "most 4096 unknowns, points x states)."),
+]
+AdaptOpt = Annotated[
+    bool,
+    typer.Option("--adapt/--no-adapt", help="Refine and coarsen the mesh to the orbits "
+                 "(--no-adapt keeps --mesh; an unresolved orbit then ends the branch)."),
+]
 QuietOpt = Annotated[bool, typer.Option("--quiet", help="No progress display.")]
 ObserveOpt = Annotated[str | None, typer.Option("--observe", help="Observed state.")]
 
@@ -90,10 +102,14 @@ def _system_and_params(name: str, sets: list[str] | None):
     return system, p
 
 
-def _check_mesh(mesh: int) -> int:
-    option_value("--mesh", mesh, ge=4, integer=True)
+def _check_mesh(mesh: int, max_mesh: int | None = None) -> int:
+    option_value("--mesh", mesh, ge=8, integer=True)
     if mesh % 2:
         raise BifidInputError(f"--mesh must be an even number of points, got {mesh}.")
+    if max_mesh is not None:
+        option_value("--max-mesh", max_mesh, ge=mesh, integer=True)
+        if max_mesh % 2:
+            raise BifidInputError(f"--max-mesh must be an even number of points, got {max_mesh}.")
     return mesh
 
 
@@ -196,9 +212,12 @@ def continue_cmd(
     ] = None,
     x0: Annotated[
         str | None,
-        typer.Option("--x0", help="Guess of the equilibrium at A: v1,v2,… in state order."),
+        typer.Option("--x0", help="Guess of the equilibrium at A: v1,v2,… in state order "
+                     "(default: the system's x0, else the origin)."),
     ] = None,
     mesh: MeshOpt = 64,
+    max_mesh: MaxMeshOpt = None,
+    adapt: AdaptOpt = True,
     sets: SetOpt = None,
     plot: PlotOpt = None,
     out: OutOpt = None,
@@ -227,18 +246,20 @@ def continue_cmd(
             raise BifidInputError("--range A B is required.")
         a, b = finite_range("--range", *prange)
         x0v = parse_x0(x0, system)
-        _check_mesh(mesh)
+        if x0v is None and system.x0 is not None:
+            x0v = np.array(system.x0)
+        _check_mesh(mesh, max_mesh)
         option_value("--max-steps", max_steps, ge=1, integer=True)
         settings = run_info("continue", system=system_name, param=param, range=[a, b],
                             x0=None if x0v is None else x0v.tolist(), mesh=mesh,
-                            max_steps=max_steps, orbits=orbits,
-                            parameters=system.param_dict(p))
+                            max_mesh=max_mesh, adapt=adapt, max_steps=max_steps,
+                            orbits=orbits, parameters=system.param_dict(p))
         with _Progress(f"{system_name}: continuation in {param}", quiet) as progress, \
                 warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
             diagram = bifurcation_diagram(system, param, a, b, p=p, x0=x0v, n_mesh=mesh,
-                                          max_steps=max_steps, orbits=orbits, progress=progress,
-                                          settings=settings,
+                                          max_mesh=max_mesh, adapt=adapt, max_steps=max_steps,
+                                          orbits=orbits, progress=progress, settings=settings,
                                           units={param: _unit(system, param)})
         diagram.warnings.extend(_caught(caught))
         payload = diagram.to_json()
@@ -269,6 +290,8 @@ def frc_cmd(
         typer.Option("--omega-range", help="Frequency range A B [rad/s], both > 0."),
     ],
     mesh: MeshOpt = 64,
+    max_mesh: MaxMeshOpt = None,
+    adapt: AdaptOpt = True,
     observe: ObserveOpt = None,
     sets: SetOpt = None,
     plot: PlotOpt = None,
@@ -285,14 +308,15 @@ def frc_cmd(
         system, p = _system_and_params(system_name, sets)
         lo, hi = finite_range("--omega-range", *omega_range, gt=0)
         option_value("--forcing", forcing, gt=0)
-        _check_mesh(mesh)
+        _check_mesh(mesh, max_mesh)
         with _Progress(f"{system_name}: FRC", quiet) as progress, \
                 warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            br = frc(system, forcing, (lo, hi), p=p, n_mesh=mesh, observed=observe,
-                     progress=progress)
+            br = frc(system, forcing, (lo, hi), p=p, n_mesh=mesh, max_mesh=max_mesh,
+                     adapt=adapt, observed=observe, progress=progress)
         settings = run_info("frc", system=system_name, forcing=forcing, omega_range=[lo, hi],
-                            mesh=mesh, parameters=system.param_dict(p))
+                            mesh=mesh, max_mesh=max_mesh, adapt=adapt,
+                            parameters=system.param_dict(p))
         diagram = _forced_diagram("frc", br, system, settings, caught)
         payload = diagram.to_json()
         _outputs(diagram, system, plot, out, payload,
@@ -312,6 +336,8 @@ def scurve_cmd(
         tuple[float, float], typer.Option("--forcing-range", help="Forcing range A B (>= 0).")
     ],
     mesh: MeshOpt = 64,
+    max_mesh: MaxMeshOpt = None,
+    adapt: AdaptOpt = True,
     observe: ObserveOpt = None,
     sets: SetOpt = None,
     plot: PlotOpt = None,
@@ -328,14 +354,15 @@ def scurve_cmd(
         system, p = _system_and_params(system_name, sets)
         lo, hi = finite_range("--forcing-range", *forcing_range, ge=0)
         option_value("--omega", omega, gt=0)
-        _check_mesh(mesh)
+        _check_mesh(mesh, max_mesh)
         with _Progress(f"{system_name}: S-curve", quiet) as progress, \
                 warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            br = scurve(system, omega, (lo, hi), p=p, n_mesh=mesh, observed=observe,
-                        progress=progress)
+            br = scurve(system, omega, (lo, hi), p=p, n_mesh=mesh, max_mesh=max_mesh,
+                        adapt=adapt, observed=observe, progress=progress)
         settings = run_info("scurve", system=system_name, omega=omega,
-                            forcing_range=[lo, hi], mesh=mesh, parameters=system.param_dict(p))
+                            forcing_range=[lo, hi], mesh=mesh, max_mesh=max_mesh, adapt=adapt,
+                            parameters=system.param_dict(p))
         diagram = _forced_diagram("scurve", br, system, settings, caught)
         payload = diagram.to_json()
         _outputs(diagram, system, plot, out, payload,
@@ -354,6 +381,8 @@ def backbone_cmd(
     ],
     mode: Annotated[int, typer.Option("--mode", help="Linear mode (0 = lowest).")] = 0,
     mesh: MeshOpt = 64,
+    max_mesh: MaxMeshOpt = None,
+    adapt: AdaptOpt = True,
     observe: ObserveOpt = None,
     sets: SetOpt = None,
     plot: PlotOpt = None,
@@ -370,14 +399,15 @@ def backbone_cmd(
         system, p = _system_and_params(system_name, sets)
         lo, hi = finite_range("--amplitude-range", *amplitude_range, gt=0)
         option_value("--mode", mode, ge=0, integer=True)
-        _check_mesh(mesh)
+        _check_mesh(mesh, max_mesh)
         with _Progress(f"{system_name}: backbone", quiet) as progress, \
                 warnings.catch_warnings(record=True) as caught:
             warnings.simplefilter("always")
-            br = backbone(system, (lo, hi), p=p, n_mesh=mesh, mode=mode, observed=observe,
-                          progress=progress)
+            br = backbone(system, (lo, hi), p=p, n_mesh=mesh, max_mesh=max_mesh, adapt=adapt,
+                          mode=mode, observed=observe, progress=progress)
         settings = run_info("backbone", system=system_name, amplitude_range=[lo, hi],
-                            mode=mode, mesh=mesh, parameters=system.param_dict(p))
+                            mode=mode, mesh=mesh, max_mesh=max_mesh, adapt=adapt,
+                            parameters=system.param_dict(p))
         diagram = _forced_diagram("backbone", br, system, settings, caught,
                                   linear_frequency=br.meta.get("linear_frequency"))
         payload = diagram.to_json()

@@ -8,10 +8,9 @@ carrying its special points.
 """
 
 from bifid.continuation._backbone import backbone
-from bifid.continuation._bifurcation import bifurcation_diagram
+from bifid.continuation._bifurcation import bifurcation_diagram, continue_from_hopf
 from bifid.continuation._branch import END_REASONS, Branch, Candidate, SpecialPoint
 from bifid.continuation._collocation import (
-    continue_from_hopf,
     hopf_orbits,
     orbit_problem,
     periodic_orbits,

@@ -26,14 +26,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from bifid.continuation._branch import Branch
-from bifid.continuation._forced import (
-    check_range,
-    forced_branch,
-    forced_stage,
-    mesh_policy,
-)
+from bifid.continuation._forced import check_range, forced_branch, forced_stage
 from bifid.continuation._fourier import fourier_grid
-from bifid.continuation._mesh import Arc, mesh_tail, run_adaptive, secant_zero
+from bifid.continuation._mesh import Arc, MeshPolicy, mesh_tail, run_adaptive, secant_zero
 from bifid.continuation._options import ContinuationOptions
 from bifid.continuation._palc import correct
 from bifid.errors import BifidInputError, ConvergenceError
@@ -132,7 +127,7 @@ def backbone(
         raise BifidInputError(f"mode {mode} of {system.name!r} does not move {obs_name!r}.")
     iF, iOm = system.index("F"), system.index("Omega")
     args = {"p": p, "idx": jnp.asarray([iF, iOm]), "obs": jnp.asarray(obs)}
-    policy = mesh_policy(n_mesh, max_mesh, resolution_tol, adapt, n)
+    policy = MeshPolicy.of(n_mesh, max_mesh, resolution_tol, adapt, n)
     options = options or ContinuationOptions(
         ds=a_lo, ds_min=a_lo * 1e-8, ds_max=(a_hi - a_lo) / 20, max_steps=2000,
         detect_folds=False,

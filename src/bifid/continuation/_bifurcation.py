@@ -20,7 +20,7 @@ from bifid.continuation._diagram import Diagram, diagram_of
 from bifid.continuation._equilibria import equilibria
 from bifid.continuation._options import ContinuationOptions
 from bifid.continuation._verify import LOCATION_ERRORS
-from bifid.errors import BifidInputError
+from bifid.errors import BifidInputError, ConvergenceError
 from bifid.systems import System
 
 
@@ -44,8 +44,12 @@ def bifurcation_diagram(
     p: Any = None,
     x0: np.ndarray | None = None,
     n_mesh: int = 64,
+    max_mesh: int | None = None,
+    adapt: bool = True,
     max_steps: int = 1000,
     orbits: bool = True,
+    eq_options: ContinuationOptions | None = None,
+    orbit_options: ContinuationOptions | None = None,
     progress: Callable[[int, float], None] | None = None,
     **diagram_kw: Any,
 ) -> Diagram:
@@ -63,13 +67,18 @@ def bifurcation_diagram(
     p : array, optional
         Parameter vector (defaults of the system).
     x0 : array of shape (n,), optional
-        Guess of the equilibrium at ``start`` (default zeros).
-    n_mesh : int
-        Collocation points of the orbits.
+        Guess of the equilibrium at ``start`` (default: the system's ``x0`` when it has
+        one, else zeros).
+    n_mesh, max_mesh, adapt
+        Starting mesh of the orbits, its limit and whether it adapts (see
+        :func:`~bifid.continuation.hopf_orbits`).
     max_steps : int
-        Step budget of each branch.
+        Step budget of each branch (of the default options).
     orbits : bool
         Continue the orbits of every Hopf point (False: equilibria only).
+    eq_options, orbit_options : ContinuationOptions, optional
+        Options of the equilibrium branch and of the orbit branches (defaults: steps
+        scaled to the range, bounds of the range, ``max_steps``).
     progress : callable ``(n_points, param) -> None``, optional
     **diagram_kw
         Passed to :class:`~bifid.continuation.Diagram` (``settings``, ``warnings``, ...).
@@ -95,19 +104,63 @@ def bifurcation_diagram(
     p = system.param_vector() if p is None else jnp.asarray(p, dtype=jnp.float64)
     lo, hi = min(start, end), max(start, end)
     span = hi - lo
-    eq_opts = ContinuationOptions(ds=span / 50, ds_max=span / 20, ds_min=span * 1e-9,
-                                  p_min=lo, p_max=hi, max_steps=max_steps,
-                                  direction=1 if end > start else -1)
-    eq = equilibria(system, param, p=p, x0=x0, start=start, options=eq_opts, progress=progress)
+    eq_options = eq_options or ContinuationOptions(
+        ds=span / 50, ds_max=span / 20, ds_min=span * 1e-9, p_min=lo, p_max=hi,
+        max_steps=max_steps, direction=1 if end > start else -1)
+    eq = equilibria(system, param, p=p, x0=x0, start=start, options=eq_options,
+                    progress=progress)
     branches = [eq]
     if orbits:
         # at least ten steps across the range, where the orbits change little
-        orbit_opts = ContinuationOptions(ds=1e-3, ds_max=max(1e-3, min(0.25, span / 10)),
-                                         ds_min=1e-9, p_min=lo, p_max=hi, max_steps=max_steps)
+        orbit_options = orbit_options or ContinuationOptions(
+            ds=1e-3, ds_max=max(1e-3, min(0.25, span / 10)), ds_min=1e-9, p_min=lo, p_max=hi,
+            max_steps=max_steps)
         for h in eq.special("hopf"):
             try:
-                branches.append(hopf_orbits(system, h, p=p, n_mesh=n_mesh, options=orbit_opts,
+                branches.append(hopf_orbits(system, h, p=p, n_mesh=n_mesh, max_mesh=max_mesh,
+                                            adapt=adapt, options=orbit_options,
                                             progress=progress))
             except LOCATION_ERRORS as exc:
                 branches.append(_failed_orbit_branch(system, param, p, h, exc))
     return diagram_of("bifurcation", branches, **diagram_kw)
+
+
+def continue_from_hopf(
+    system: System,
+    param: str,
+    lo: float,
+    hi: float,
+    *,
+    p: Any = None,
+    x0: np.ndarray | None = None,
+    n_mesh: int = 64,
+    max_mesh: int | None = None,
+    eq_options: ContinuationOptions | None = None,
+    orbit_options: ContinuationOptions | None = None,
+    progress: Callable[[int, float], None] | None = None,
+) -> tuple[Branch, list[Branch]]:
+    """Equilibria over ``[lo, hi]`` and the periodic-orbit branch of every Hopf point:
+    :func:`bifurcation_diagram` as a pair ``(equilibria, orbit branches)``, for callers
+    that need a Hopf point.
+
+    Raises
+    ------
+    BifidInputError
+        If the range contains no verified Hopf point.
+    ConvergenceError
+        If the orbits of a Hopf point could not be started (the reason in the message).
+    """
+    diagram = bifurcation_diagram(system, param, lo, hi, p=p, x0=x0, n_mesh=n_mesh,
+                                  max_mesh=max_mesh, eq_options=eq_options,
+                                  orbit_options=orbit_options, progress=progress)
+    eq, *branches = diagram.branches
+    if not eq.special("hopf"):
+        a, b = min(lo, hi), max(lo, hi)
+        raise BifidInputError(
+            f"No Hopf point of {system.name!r} in {param} ∈ [{a:g}, {b:g}]; "
+            "widen the range or change parameters."
+        )
+    for br in branches:
+        if br.status == "failed" and len(br) == 0:
+            raise ConvergenceError(br.message)
+    return eq, branches

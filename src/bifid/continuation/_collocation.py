@@ -22,7 +22,6 @@ branch's Floquet multipliers, special points and end are worked out in
 from __future__ import annotations
 
 import functools
-import warnings
 from collections.abc import Callable
 
 import jax
@@ -30,12 +29,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from bifid.continuation._branch import Branch, SpecialPoint
-from bifid.continuation._equilibria import equilibria
 from bifid.continuation._fourier import fourier_differentiation_matrix, fourier_grid
 from bifid.continuation._mesh import (
     MeshPolicy,
     Stage,
-    default_max_mesh,
     mesh_tail,
     resample_orbit,
     run_adaptive,
@@ -49,8 +46,7 @@ from bifid.systems import System
 Array = jnp.ndarray
 TWO_PI = 2.0 * np.pi
 
-__all__ = ["continue_from_hopf", "hopf_orbits", "orbit_problem", "periodic_orbits",
-           "resample_orbit"]
+__all__ = ["hopf_orbits", "orbit_problem", "periodic_orbits", "resample_orbit"]
 
 
 @functools.lru_cache(maxsize=32)
@@ -116,13 +112,6 @@ def orbit_stage(system: System, p: Array, idx: int, M: int) -> Stage:
                  args=args_of, update_args=lambda y, args: args_of(y))
 
 
-def _policy(n_mesh: int, max_mesh: int | None, resolution_tol: float, adapt: bool,
-            n_states: int) -> MeshPolicy:
-    limit = max_mesh if max_mesh is not None else default_max_mesh(n_mesh, n_states)
-    return MeshPolicy(n_mesh=n_mesh, max_mesh=max(limit, n_mesh), tol=resolution_tol,
-                      adapt=adapt)
-
-
 def hopf_orbits(
     system: System,
     hopf: SpecialPoint,
@@ -180,7 +169,7 @@ def hopf_orbits(
     if hopf.kind != "hopf" or "eigenvector" not in hopf.data:
         raise BifidInputError("hopf_orbits needs a located Hopf point (kind 'hopf' with data).")
     options = options or ContinuationOptions()
-    policy = _policy(n_mesh, max_mesh, resolution_tol, adapt, system.n_states)
+    policy = MeshPolicy.of(n_mesh, max_mesh, resolution_tol, adapt, system.n_states)
     param = hopf.data.get("param_name") or system.default_param
     idx = system.index(param)
     p = jnp.asarray(hopf.data["p"] if p is None else p, dtype=jnp.float64)
@@ -265,7 +254,7 @@ def periodic_orbits(
             f"orbit must have shape (M, {system.n_states}), got {orbit.shape}."
         )
     M = n_mesh or orbit.shape[0]
-    policy = _policy(M, max_mesh, resolution_tol, adapt, system.n_states)
+    policy = MeshPolicy.of(M, max_mesh, resolution_tol, adapt, system.n_states)
     V = resample_orbit(orbit, M) if orbit.shape[0] != M else orbit
     n = system.n_states
     lam0 = float(p[idx])
@@ -301,57 +290,3 @@ def periodic_orbits(
 def _centred_amplitude(y: np.ndarray, M: int, n: int) -> float:
     V = np.asarray(y[: M * n]).reshape(M, n)
     return float(np.max(np.abs(V - V.mean(axis=0))))
-
-
-def continue_from_hopf(
-    system: System,
-    param: str,
-    lo: float,
-    hi: float,
-    *,
-    p: Array | None = None,
-    x0: np.ndarray | None = None,
-    n_mesh: int = 64,
-    max_mesh: int | None = None,
-    eq_options: ContinuationOptions | None = None,
-    orbit_options: ContinuationOptions | None = None,
-    progress: Callable[[int, float], None] | None = None,
-) -> tuple[Branch, list[Branch]]:
-    """Equilibria over ``[lo, hi]`` and the periodic-orbit branch of every Hopf point found.
-
-    The equilibria start at ``lo`` (``hi < lo`` runs downwards) from the guess ``x0``
-    (default zeros); ``n_mesh`` is the starting mesh of the
-    orbits and ``max_mesh`` its limit (see :func:`hopf_orbits`).
-
-    Raises
-    ------
-    BifidInputError
-        If the range contains no Hopf point.
-    """
-    start = lo
-    direction = 1 if hi > lo else -1
-    lo, hi = min(lo, hi), max(lo, hi)
-    span = hi - lo
-    eq_options = eq_options or ContinuationOptions(
-        ds=span / 50, ds_max=span / 20, ds_min=span * 1e-8, p_min=lo, p_max=hi, max_steps=2000,
-        direction=direction,
-    )
-    p = system.param_vector() if p is None else jnp.asarray(p)
-    eq = (equilibria(system, param, p=p, start=start, options=eq_options) if x0 is None else
-          equilibria(system, param, p=p, x0=x0, start=start, options=eq_options))
-    hopfs = [sp for sp in eq.special_points if sp.kind == "hopf" and sp.status == "converged"]
-    if not hopfs:
-        raise BifidInputError(
-            f"No Hopf point of {system.name!r} in {param} ∈ [{lo:g}, {hi:g}]; "
-            "widen the range or change parameters."
-        )
-    branches = []
-    for h in hopfs:
-        opts = orbit_options or ContinuationOptions(
-            ds=1e-3, ds_max=0.25, ds_min=1e-9, p_min=lo, p_max=hi, max_steps=600
-        )
-        with warnings.catch_warnings():
-            warnings.simplefilter("default")
-            branches.append(hopf_orbits(system, h, p=p, n_mesh=n_mesh, max_mesh=max_mesh,
-                                        options=opts, progress=progress))
-    return eq, branches

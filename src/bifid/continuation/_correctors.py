@@ -9,7 +9,28 @@ Convergence is judged on the Newton update *relative to the size of the unknowns
 ``max|dy| <= tol * (1 + max|y|)`` (as AUTO and MatCont do), so the same tolerance serves
 states of size 1e-3 and 1e3. The dense linear algebra runs in SciPy (LAPACK LU), which for
 the few-hundred-unknown systems of collocation is several times faster on CPU than inside
-XLA; the residual and Jacobian are jitted once per problem.
+XLA; the residual, the Jacobian and the Jacobian-vector product are jitted once per problem.
+
+The LU factorisation is the cost of a step on a fine collocation mesh (thousands of
+unknowns), so it is reused wherever that changes nothing but the cost:
+
+* **last Newton iteration** — once the corrections converge quadratically and the next one
+  is predicted below the tolerance (``C e_k^2 <= tol / 10`` with ``C = e_k / e_{k-1}^2``
+  measured), the iteration reuses the factorisation of the previous one: the update
+  differs from Newton's by ``O(e_k e_{k+1})``, far below the tolerance, and the iteration
+  count is Newton's;
+* **tangent** — the tangent at the corrected point ``y`` solves ``[G_y(y); r^T] t = e``
+  with the same bordering row ``r`` as the corrector's last factorisation, taken at an
+  iterate within the last correction of ``y``: it is solved with that factorisation and
+  refined to round-off by iterative refinement with the exact product ``G_y(y) t``
+  (a Jacobian-vector product, no new Jacobian). A different row is a rank-one change of
+  the last row (Sherman–Morrison). Where refinement does not converge in
+  :data:`REFINE_STEPS` sweeps the tangent is factorised afresh.
+
+Problems with fewer than :data:`REUSE_MIN_UNKNOWNS` unknowns factorise afresh each time
+(their factorisation is cheaper than compiling the extra functions). The bordered matrix
+is factorised as its transpose, which is the C-ordered array itself (no copy), and solved
+with ``trans=1``.
 """
 
 from __future__ import annotations
@@ -59,6 +80,16 @@ class ZeroProblem:
         )
 
 
+#: problems with at least this many unknowns reuse factorisations (below it a
+#: factorisation costs less than compiling the extra residual and Jacobian-vector product)
+REUSE_MIN_UNKNOWNS = 400
+#: iterative-refinement sweeps of a tangent solved with a reused factorisation
+REFINE_STEPS = 4
+#: a reused factorisation's tangent is accepted when the refinement's last update is
+#: below this (relative to the tangent)
+REFINE_TOL = 1e-13
+
+
 @functools.lru_cache(maxsize=128)
 def _evaluator(problem: ZeroProblem) -> Callable:
     """Jitted ``(y, args) -> (G(y), G_y(y))``, compiled once per problem."""
@@ -71,16 +102,53 @@ def _evaluator(problem: ZeroProblem) -> Callable:
     return both
 
 
-def _factor(Jm: np.ndarray, row: np.ndarray):
-    A = np.vstack([Jm, row[None, :]])
+@functools.lru_cache(maxsize=128)
+def _residual_evaluator(problem: ZeroProblem) -> Callable:
+    """Jitted ``(y, args) -> G(y)``."""
+    return jax.jit(problem.residual)
+
+
+@functools.lru_cache(maxsize=128)
+def _jvp_evaluator(problem: ZeroProblem) -> Callable:
+    """Jitted ``(y, v, args) -> G_y(y) v`` (forward mode: no Jacobian is formed)."""
+
+    @jax.jit
+    def jvp(y: Array, v: Array, args: Any):
+        return jax.jvp(lambda z: problem.residual(z, args), (y,), (v,))[1]
+
+    return jvp
+
+
+@dataclass
+class _Factorisation:
+    """LU of the bordered matrix ``[G_y(y); row^T]``."""
+
+    lu: np.ndarray
+    piv: np.ndarray
+    y: np.ndarray
+    row: np.ndarray
+    args: Any = None
+
+    def solve(self, b: np.ndarray) -> np.ndarray:
+        # lu holds the factors of the transpose (see _factor)
+        return scipy.linalg.lu_solve((self.lu, self.piv), b, trans=1, check_finite=False)
+
+    @property
+    def det_sign(self) -> float:
+        swaps = np.count_nonzero(self.piv != np.arange(self.piv.shape[0]))
+        return float((-1) ** swaps * np.prod(np.sign(np.diag(self.lu))))
+
+
+def _factor(Jm: np.ndarray, row: np.ndarray, y: np.ndarray, args: Any = None
+            ) -> _Factorisation:
+    n = Jm.shape[0]
+    A = np.empty((n + 1, Jm.shape[1]))
+    A[:n] = Jm
+    A[n] = row
     with np.errstate(all="ignore"):
-        lu, piv = scipy.linalg.lu_factor(A, check_finite=False)
-    return lu, piv
-
-
-def _det_sign(lu: np.ndarray, piv: np.ndarray) -> float:
-    swaps = np.count_nonzero(piv != np.arange(piv.shape[0]))
-    return float((-1) ** swaps * np.prod(np.sign(np.diag(lu))))
+        # A.T is Fortran-ordered without a copy: LU of A^T, solved with trans=1 (det equal)
+        lu, piv = scipy.linalg.lu_factor(A.T, overwrite_a=True, check_finite=False)
+    return _Factorisation(lu, piv, np.array(y, dtype=float), np.array(row, dtype=float), args)
 
 
 @dataclass
@@ -144,7 +212,9 @@ class NewtonCorrector(AbstractCorrector):
     """Newton's method with the exact Jacobian of a :class:`ZeroProblem`.
 
     Converged when the update is small relative to the unknowns,
-    ``max|dy| <= tol * (1 + max|y|)``, and the residual is finite.
+    ``max|dy| <= tol * (1 + max|y|)``, and the residual is finite. The factorisation is
+    reused for a last iteration predicted to converge and for the tangent (module
+    docstring); the iteration counts and results are Newton's.
     """
 
     def __init__(self, problem: ZeroProblem, *, tol: float = 1e-10, max_iter: int = 10) -> None:
@@ -152,45 +222,109 @@ class NewtonCorrector(AbstractCorrector):
         self.tol = float(tol)
         self.max_iter = int(max_iter)
         self._both = _evaluator(problem)
+        self._residual = _residual_evaluator(problem)
+        self._jvp = _jvp_evaluator(problem)
+        self._last: _Factorisation | None = None
 
     def evaluate(self, y: np.ndarray, args: Any) -> tuple[np.ndarray, np.ndarray]:
         """``G(y)`` and ``G_y(y)`` as NumPy arrays."""
         G, Jm = self._both(y, args)
         return np.asarray(G), np.asarray(Jm)
 
+    def residual(self, y: np.ndarray, args: Any) -> np.ndarray:
+        """``G(y)`` as a NumPy array (no Jacobian on large problems)."""
+        if np.shape(y)[0] < REUSE_MIN_UNKNOWNS:
+            return np.asarray(self._both(y, args)[0])
+        return np.asarray(self._residual(y, args))
+
     def correct(self, y_pred: np.ndarray, row: np.ndarray, c: float, args: Any) -> Correction:
         y = np.asarray(y_pred, dtype=float).copy()
         row = np.asarray(row, dtype=float)
-        err = np.inf
+        large = y.shape[0] >= REUSE_MIN_UNKNOWNS
+        err, err_prev = np.inf, np.inf
+        fact: _Factorisation | None = None
+        reuse = False
         it = 0
         while it < self.max_iter:
-            G, Jm = self.evaluate(y, args)
+            if reuse and fact is not None:
+                G = self.residual(y, args)
+            else:
+                G, Jm = self.evaluate(y, args)
+                if not np.all(np.isfinite(Jm)):
+                    return Correction(y, False, it, np.inf)
+                fact = _factor(Jm, row, y, args)
             r = np.concatenate([G, [row @ y - float(c)]])
             if not np.all(np.isfinite(r)):
                 return Correction(y, False, it, np.inf)
-            lu, piv = _factor(Jm, row)
-            dy = scipy.linalg.lu_solve((lu, piv), -r, check_finite=False)
+            dy = fact.solve(-r)
             if not np.all(np.isfinite(dy)):
                 return Correction(y, False, it, np.inf)
             y = y + dy
             it += 1
-            err = float(np.max(np.abs(dy))) / (1.0 + float(np.max(np.abs(y))))
+            err_prev, err = err, float(np.max(np.abs(dy))) / (1.0 + float(np.max(np.abs(y))))
             if err <= self.tol:
                 break
-        G, _ = self._both(y, args)
-        res = float(np.max(np.abs(np.asarray(G))))
+            # reuse the factorisation for one iteration predicted (from the measured
+            # quadratic convergence) to end below the tolerance; never twice in a row
+            reuse = (large and not reuse and np.isfinite(err_prev) and err < err_prev
+                     and err**3 <= 0.1 * self.tol * err_prev**2)
+        if fact is not None and large:
+            self._last = fact
+        res = float(np.max(np.abs(self.residual(y, args))))
         return Correction(y, bool(err <= self.tol and np.isfinite(res)), it, res)
 
     def tangent(self, y, t_prev, weights, args):
         # [G_y; (W t_prev)^T] t = [0; 1]
-        _, Jm = self.evaluate(np.asarray(y, dtype=float), args)
+        y = np.asarray(y, dtype=float)
         w = np.asarray(weights, dtype=float)
-        lu, piv = _factor(Jm, w * np.asarray(t_prev, dtype=float))
-        rhs = np.zeros(np.asarray(y).shape[0])
+        row = w * np.asarray(t_prev, dtype=float)
+        rhs = np.zeros(y.shape[0])
         rhs[-1] = 1.0
-        t = scipy.linalg.lu_solve((lu, piv), rhs, check_finite=False)
+        found = self._refined_tangent(y, row, rhs, args)
+        if found is None:
+            _, Jm = self.evaluate(y, args)
+            fact = _factor(Jm, row, y, args)
+            if y.shape[0] >= REUSE_MIN_UNKNOWNS:
+                self._last = fact
+            found = fact.solve(rhs), fact.det_sign
+        t, sign = found
         t = t / np.sqrt(t @ (w * t))
-        return t, _det_sign(lu, piv)
+        return t, sign
+
+    def _refined_tangent(self, y: np.ndarray, row: np.ndarray, rhs: np.ndarray, args: Any
+                         ) -> tuple[np.ndarray, float] | None:
+        """Solve ``[G_y(y); row^T] t = rhs`` with the last factorisation (taken near ``y``,
+        perhaps with another last row) and iterative refinement; None when it does not
+        converge."""
+        f = self._last
+        if f is None or f.args is not args or f.y.shape != y.shape:
+            return None
+        scale = 1.0 + float(np.max(np.abs(y)))
+        if float(np.max(np.abs(f.y - y))) > 1e-4 * scale:
+            return None
+        # a changed last row is the rank-one update A' = A + e (row - f.row)^T
+        e = np.zeros_like(rhs)
+        e[-1] = 1.0
+        delta = row - f.row
+        u = f.solve(e) if np.any(delta) else None
+        denom = 1.0 + float(delta @ u) if u is not None else 1.0
+        if not (np.isfinite(denom) and abs(denom) > 1e-12):
+            return None
+
+        def solve(b):
+            x = f.solve(b)
+            return x if u is None else x - u * (float(delta @ x) / denom)
+
+        t = solve(rhs)
+        for _ in range(REFINE_STEPS):
+            At = np.concatenate([np.asarray(self._jvp(y, t, args)), [row @ t]])
+            dt = solve(rhs - At)
+            t = t + dt
+            if not np.all(np.isfinite(t)):
+                return None
+            if float(np.max(np.abs(dt))) <= REFINE_TOL * float(np.max(np.abs(t))):
+                return t, f.det_sign * float(np.sign(denom))
+        return None
 
 
 def correct(

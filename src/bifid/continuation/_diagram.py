@@ -211,6 +211,8 @@ class Diagram:
             if self.kind in ("frc", "scurve"):
                 out["folds"] = [self._special_json(sp, b) for b in self.branches
                                 for sp in b.special("fold")]
+                out["secondary"] = [self._special_json(sp, b) for b in self.branches
+                                    for sp in b.special_points if sp.kind in _SECONDARY]
             if self.kind == "frc":
                 out["peak"] = self._peak_json()
         out["ends"] = [{"branch": i, "param": float(b.params[-1]) if len(b) else None,

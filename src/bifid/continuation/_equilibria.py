@@ -67,7 +67,9 @@ def _batched_residual(problem: ZeroProblem) -> Callable:
 
 
 def check_x0(system: System, x0: np.ndarray | None) -> np.ndarray:
-    """A starting state: ``n_states`` finite numbers (zeros when None).
+    """A starting state: ``n_states`` finite numbers; when None, the system's own guess
+    (:attr:`System.x0 <bifid.systems.System>`, e.g. ``x0 = [...]`` in a ``.toml`` file),
+    else zeros.
 
     Raises
     ------
@@ -75,7 +77,7 @@ def check_x0(system: System, x0: np.ndarray | None) -> np.ndarray:
         On a wrong length or a value that is not finite.
     """
     if x0 is None:
-        return np.zeros(system.n_states)
+        return np.zeros(system.n_states) if system.x0 is None else np.array(system.x0)
     try:
         x = np.asarray(x0, dtype=float).reshape(-1)
     except (TypeError, ValueError):
@@ -223,6 +225,11 @@ def _locate_crossing(between: _Between, param: str, ya, yb, a: complex, b: compl
     p_h[between.idx] = y_best[-1]
     lo, hi = between.at(ya, yb, sa), between.at(ya, yb, sb)
     prec = abs(float(hi[-1] - lo[-1])) if lo is not None and hi is not None else abs(sb - sa)
+    # a search that hit the zero exactly leaves a wide bracket: the error is then the
+    # residual real part over its rate of change along the branch
+    slope = abs((b.real - a.real) / (float(yb[-1]) - float(ya[-1]))) if yb[-1] != ya[-1] else 0.0
+    if slope > 0:
+        prec = min(prec, 2.0 * abs(best.real) / slope)
     return SpecialPoint(
         kind="hopf", param=float(y_best[-1]), index=-1, bracket=(float(ya[-1]), float(yb[-1])),
         solution=np.asarray(y_best[:-1]), precision=prec + 1e-15 * max(1.0, abs(y_best[-1])),
@@ -268,7 +275,8 @@ def equilibria(
     p : array, optional
         Parameter vector (defaults); ``param`` starts at ``start`` or ``p[param]``.
     x0 : array of shape (n,), optional
-        Guess of the starting equilibrium (default zeros).
+        Guess of the starting equilibrium (default: the system's ``x0`` when it has one,
+        else zeros).
     start : float, optional
         Starting parameter value.
     options : ContinuationOptions

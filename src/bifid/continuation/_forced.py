@@ -17,7 +17,10 @@ count; harmonics below :data:`HARMONIC_FLOOR` of the largest are ignored). Acros
 step can never jump over a resonance, however narrow; approaching one, the allowed step
 shrinks in proportion to the distance, so its peak is resolved. Local maxima of the
 observed amplitude are located (``peak`` special points) and verified; folds are
-verified by ``_folds``.
+verified by ``_folds``; period doubling (a multiplier through -1), torus points (a complex
+pair through the unit circle) and branch points (a multiplier through +1 where the curve
+does not turn, e.g. a symmetry-breaking pitchfork) are located and verified on the
+multipliers by ``_orbit_bifurcations``, as for autonomous orbits.
 """
 
 from __future__ import annotations
@@ -38,14 +41,16 @@ from bifid.continuation._mesh import (
     Arc,
     MeshPolicy,
     Stage,
-    default_max_mesh,
+    bracket_slack,
     mesh_tail,
     on_common_mesh,
     remesh,
     residual_check,
     run_adaptive,
+    run_residuals,
 )
 from bifid.continuation._options import ContinuationOptions
+from bifid.continuation._orbit_bifurcations import BracketContext, find_orbit_special_points
 from bifid.continuation._palc import ZeroProblem, correct
 from bifid.continuation._verify import Check, Findings, Verdict, register_verifier
 from bifid.errors import BifidInputError, ConvergenceError
@@ -195,8 +200,13 @@ def forced_branch(system: System, kind: str, param: str, run: AdaptiveRun, p, id
     _report_folds(findings, system, run, params, p, stage_of, obs)
     if kind == "forced":
         _report_peaks(findings, system, run, params, stage_of, obs)
-    residual = np.array([np.max(np.abs(np.asarray(stage_of(m).problem.residual(
-        jnp.asarray(y), a)))) for y, m, a in zip(run.ys, run.meshes, run.args, strict=True)])
+        # period doubling, torus and branch points of the responses, on the multipliers
+        ctx = BracketContext(system=system, param=param, p=np.asarray(p), idx=idx_free[0],
+                             run=run, stage_of=stage_of, floquet=fl,
+                             zero=np.zeros(len(run.ys), bool),
+                             forced_rhs=forced_rhs(system, forcing))
+        find_orbit_special_points(findings, ctx, params)
+    residual = run_residuals(run, stage_of)
     tails = np.asarray(run.tails)
     return Branch(
         kind=kind, system=system.name, param=param, params=params,
@@ -236,7 +246,9 @@ def _report_folds(findings, system, run, params, p, stage_of, obs) -> None:
                                    "n_mesh": int(M)})
         findings.confirm("fold", bracket, lambda point=point: point,
                          context={"problem": stage.problem, "args": stage.args(y_f),
-                                  "weights": stage.weights, "y": y_f}, index=i)
+                                  "weights": stage.weights, "y": y_f}, index=i,
+                         slack=bracket_slack(run.ys[i], run.meshes[i], run.ys[i + 1],
+                                             run.meshes[i + 1], n))
 
 
 @register_verifier("peak")
@@ -333,13 +345,6 @@ def _linear_response(system: System, p: Array, M: int) -> np.ndarray:
     return np.real(np.outer(np.exp(1j * tau), X))
 
 
-def mesh_policy(n_mesh: int, max_mesh: int | None, tol: float, adapt: bool, n: int
-                ) -> MeshPolicy:
-    """The mesh policy of a forced run (``max_mesh`` default: ``default_max_mesh``)."""
-    limit = max_mesh if max_mesh is not None else default_max_mesh(n_mesh, n)
-    return MeshPolicy(n_mesh=n_mesh, max_mesh=max(limit, n_mesh), tol=tol, adapt=adapt)
-
-
 def frc(
     system: System,
     forcing: float,
@@ -400,7 +405,7 @@ def _one_parameter(system, param, rng, fixed, p, n_mesh, max_mesh, adapt, option
     lo, hi = check_range(f"{'omega' if param == 'Omega' else 'forcing'} range", *rng)
     direction = 1 if hi > lo else -1
     n = system.n_states
-    policy = mesh_policy(n_mesh, max_mesh, resolution_tol, adapt, n)
+    policy = MeshPolicy.of(n_mesh, max_mesh, resolution_tol, adapt, n)
     p = system.param_vector() if p is None else jnp.asarray(p, dtype=jnp.float64)
     for name, value in fixed.items():
         p = p.at[system.index(name)].set(value)
@@ -422,8 +427,9 @@ def _one_parameter(system, param, rng, fixed, p, n_mesh, max_mesh, adapt, option
     y0, ok, _, res = correct(stage_of(M).problem, y0, e, lo, args, tol=options.newton_tol,
                              max_iter=30)
     while ok and mesh_tail(y0, M, n) > resolution_tol and policy.finer(M):
-        y1 = remesh(y0, M, 2 * M, n)
-        M *= 2
+        M_new = policy.finer(M)
+        y1 = remesh(y0, M, M_new, n)
+        M = M_new
         e = np.zeros_like(y1)
         e[-1] = 1.0
         y0, ok, _, res = correct(stage_of(M).problem, y1, e, lo, args,

@@ -6,12 +6,15 @@ the top quarter of its Fourier spectrum relative to the peak). After every step 
 predictor–corrector driver:
 
 * **refine** — a new point whose tail exceeds ``tol`` is not accepted: the last accepted
-  point is interpolated onto ``2M`` points (:func:`resample_orbit`, exact for the
-  trigonometric interpolant), corrected there, and the step is retried on the finer mesh;
-* **coarsen** — when the accepted orbit, interpolated onto ``M/2`` points, has a tail
-  below ``tol * COARSEN_MARGIN``, the branch continues on ``M/2`` points (never below the
-  starting mesh, and not within ``HOLD_STEPS`` steps of a refinement), so the cost follows
-  the orbit's difficulty;
+  point is interpolated onto the next mesh of the ladder (:func:`resample_orbit`, exact
+  for the trigonometric interpolant), corrected there, and the step is retried on the
+  finer mesh. The ladder is ``n_mesh * {1, 3/2, 2, 3, 4, 6, ...}`` (even sizes, up to
+  ``max_mesh``): steps of 3/2 and 4/3 rather than doublings, so that a branch never uses
+  more than 3/2 of the points it needs (the dense factorisation costs ``(M n)^3``);
+* **coarsen** — when the accepted orbit, interpolated onto the next coarser mesh of the
+  ladder, has a tail below ``tol * COARSEN_MARGIN``, the branch continues there (never
+  below the starting mesh, and not within ``HOLD_STEPS`` steps of a refinement), so the
+  cost follows the orbit's difficulty;
 * **limit** — on the largest mesh (``max_mesh``, default :func:`default_max_mesh`: at most
   :data:`DEFAULT_MAX_UNKNOWNS` unknowns ``M * n``) an
   unresolved step is retried with smaller steps; when none is resolved the branch ends
@@ -55,7 +58,24 @@ def default_max_mesh(n_mesh: int, n_states: int) -> int:
     while 2 * M * n_states <= DEFAULT_MAX_UNKNOWNS:
         M *= 2
     return M
-#: the mesh is halved when the orbit's tail on the half mesh is below tol * COARSEN_MARGIN
+
+
+def mesh_ladder(n_mesh: int, max_mesh: int) -> tuple[int, ...]:
+    """The meshes a branch may use: ``n_mesh * 2^k`` and ``3/2 n_mesh * 2^k`` (rounded to
+    even sizes) up to ``max_mesh``, and ``max_mesh`` itself (when even)."""
+    rungs = {max_mesh} if max_mesh % 2 == 0 else set()
+    M = n_mesh
+    while M <= max_mesh:
+        rungs.add(M)
+        mid = 2 * round(0.75 * M)
+        if mid <= max_mesh:
+            rungs.add(mid)
+        M *= 2
+    return tuple(sorted(r for r in rungs if r >= n_mesh))
+
+
+#: the mesh is coarsened when the orbit's tail on the next coarser mesh is below
+#: tol * COARSEN_MARGIN
 COARSEN_MARGIN = 1e-2
 #: steps after a refinement during which the mesh is not coarsened again
 HOLD_STEPS = 8
@@ -108,12 +128,18 @@ class MeshPolicy:
         Largest spectral tail of a recorded orbit.
     adapt : bool
         False keeps ``n_mesh`` throughout (an unresolved orbit then ends the branch).
+
+    Attributes
+    ----------
+    ladder : tuple of int
+        The meshes the branch may use (:func:`mesh_ladder`).
     """
 
     n_mesh: int
     max_mesh: int
     tol: float = 1e-9
     adapt: bool = True
+    ladder: tuple[int, ...] = field(init=False, repr=False, compare=False, default=())
 
     def __post_init__(self) -> None:
         if self.n_mesh < 8 or self.n_mesh % 2:
@@ -126,12 +152,28 @@ class MeshPolicy:
             )
         if not 0 < self.tol < 1:
             raise BifidInputError(f"the resolution tolerance must lie in (0, 1), got {self.tol}.")
+        object.__setattr__(self, "ladder", mesh_ladder(self.n_mesh, self.max_mesh))
+
+    @classmethod
+    def of(cls, n_mesh: int, max_mesh: int | None, tol: float, adapt: bool,
+           n_states: int) -> MeshPolicy:
+        """The policy of a driver's arguments (``max_mesh`` default:
+        :func:`default_max_mesh`; never below ``n_mesh``)."""
+        limit = max_mesh if max_mesh is not None else default_max_mesh(n_mesh, n_states)
+        return cls(n_mesh=n_mesh, max_mesh=max(limit, n_mesh), tol=tol, adapt=adapt)
 
     def finer(self, M: int) -> int | None:
-        return 2 * M if self.adapt and 2 * M <= self.max_mesh else None
+        """The next mesh of the ladder above ``M`` (None at the limit)."""
+        if not self.adapt:
+            return None
+        return next((r for r in self.ladder if r > M), None)
 
     def coarser(self, M: int) -> int | None:
-        return M // 2 if self.adapt and M // 2 >= self.n_mesh and (M // 2) % 2 == 0 else None
+        """The next mesh of the ladder below ``M`` (None at ``n_mesh``)."""
+        if not self.adapt:
+            return None
+        below = [r for r in self.ladder if r < M]
+        return below[-1] if below else None
 
 
 @dataclass
@@ -321,7 +363,7 @@ def residual_check(context: Any) -> Check:
     """The verification check "on the curve": ``max|G(y)| <= 1e-8 (1 + max|y|)`` for
     ``context["problem"]``, ``["args"]`` and ``["y"]``."""
     y = np.asarray(context["y"], dtype=float)
-    G, _ = NewtonCorrector(context["problem"]).evaluate(y, context["args"])
+    G = NewtonCorrector(context["problem"]).residual(y, context["args"])
     return Check.at_most("residual", float(np.max(np.abs(G))),
                          1e-8 * (1.0 + float(np.max(np.abs(y)))))
 
@@ -354,6 +396,22 @@ def secant_zero(f: Callable[[float], tuple[float, Any]], a: float, b: float, *,
         if fs == 0.0 or abs(b - a) < xtol * max(1.0, abs(a), abs(b)):
             break
     return best[0], abs(b - a)
+
+
+def run_residuals(run: AdaptiveRun, stage_of: Callable[[int], Stage]) -> np.ndarray:
+    """``max|G(y)|`` of every point of a run, each on its own mesh (the ``residual`` of a
+    branch's ``verification``)."""
+    return np.array([
+        float(np.max(np.abs(NewtonCorrector(stage_of(m).problem).residual(y, a))))
+        for y, m, a in zip(run.ys, run.meshes, run.args, strict=True)
+    ])
+
+
+def bracket_slack(y_a: np.ndarray, M_a: int, y_b: np.ndarray, M_b: int, n: int) -> float:
+    """Largest change of any unknown between two points of a run (on the finer of their
+    meshes): the ``slack`` of a fold located between them (``_verify.confirm``)."""
+    M = max(M_a, M_b)
+    return float(np.max(np.abs(remesh(y_b, M_b, M, n) - remesh(y_a, M_a, M, n))))
 
 
 def on_common_mesh(ys: list[np.ndarray], meshes: list[int], n: int) -> tuple[np.ndarray, int]:

@@ -43,7 +43,14 @@ import numpy as np
 from bifid.continuation._branch import SpecialPoint
 from bifid.continuation._floquet import Floquet, autonomous_rhs, floquet
 from bifid.continuation._folds import verify_fold
-from bifid.continuation._mesh import AdaptiveRun, Arc, Stage, residual_check, secant_zero
+from bifid.continuation._mesh import (
+    AdaptiveRun,
+    Arc,
+    Stage,
+    bracket_slack,
+    residual_check,
+    secant_zero,
+)
 from bifid.continuation._palc import NewtonCorrector
 from bifid.continuation._verify import Check, Findings, Verdict, register_verifier
 from bifid.systems import System
@@ -64,7 +71,12 @@ BRANCH_TANGENT_MIN = 1e-3
 
 @dataclass
 class BracketContext:
-    """What locating a special point between two points of an orbit run needs."""
+    """What locating a special point between two points of an orbit run needs.
+
+    Autonomous orbits have unknowns ``[v (M*n), T, lambda]``; forced responses
+    (``forced_rhs`` given) ``[v (M*n), lambda]`` with the period ``2 pi / Omega``, all
+    their multipliers non-trivial.
+    """
 
     system: System
     param: str
@@ -74,21 +86,50 @@ class BracketContext:
     stage_of: Callable[[int], Stage]
     floquet: Floquet
     zero: np.ndarray
+    forced_rhs: Callable | None = None
 
     @property
     def n(self) -> int:
         return self.system.n_states
 
+    @property
+    def autonomous(self) -> bool:
+        return self.forced_rhs is None
+
+    @property
+    def n_nontrivial(self) -> int:
+        """Non-trivial multipliers of an orbit (the trivial one of autonomous orbits
+        excluded)."""
+        return self.n - 1 if self.autonomous else self.n
+
+    def lam(self, y: np.ndarray, M: int) -> float:
+        """The continuation parameter of ``y`` (mesh ``M``)."""
+        return float(y[M * self.n + (1 if self.autonomous else 0)])
+
+    def params_of(self, y: np.ndarray, M: int) -> tuple[np.ndarray, float]:
+        """The parameter vector and the period of ``y`` (mesh ``M``)."""
+        ps = np.asarray(self.p, dtype=float).copy()
+        ps[self.idx] = self.lam(y, M)
+        if self.autonomous:
+            return ps, float(y[M * self.n])
+        return ps, 2.0 * np.pi / float(ps[self.system.index("Omega")])
+
     def multipliers(self, y: np.ndarray, M: int) -> tuple[np.ndarray, np.ndarray]:
         """Non-trivial multipliers and their log-moduli of the orbit ``y`` (mesh ``M``)."""
         n = self.n
-        ps = np.asarray(self.p, dtype=float).copy()[None, :]
-        ps[0, self.idx] = float(y[M * n + 1])
-        fl = floquet(autonomous_rhs(self.system.field), np.asarray(y[: M * n]).reshape(1, M, n),
-                     np.array([float(y[M * n])]), ps, autonomous=True)
+        ps, period = self.params_of(y, M)
+        rhs = autonomous_rhs(self.system.field) if self.autonomous else self.forced_rhs
+        fl = floquet(rhs, np.asarray(y[: M * n]).reshape(1, M, n), np.array([period]),
+                     ps[None, :], autonomous=self.autonomous)
         if not fl.ok[0]:
             raise ArithmeticError("the Floquet multipliers of the orbit could not be computed")
         return fl.nontrivial(0)
+
+    def step(self, i: int) -> float:
+        """Largest change of any unknown between points ``i`` and ``i + 1`` (on the finer
+        mesh): the most a fold located between them can lie beyond them."""
+        run, n = self.run, self.n
+        return bracket_slack(run.ys[i], run.meshes[i], run.ys[i + 1], run.meshes[i + 1], n)
 
     def arc(self, i: int) -> Arc:
         """The arc between points ``i`` and ``i + 1`` on the finer of their meshes."""
@@ -101,15 +142,17 @@ class BracketContext:
 def _point_data(ctx: BracketContext, y: np.ndarray, M: int) -> dict[str, Any]:
     n = ctx.n
     V = np.asarray(y[: M * n]).reshape(M, n)
-    return {"period": float(y[M * n]), "amplitude": np.max(np.abs(V), axis=0),
+    return {"period": ctx.params_of(y, M)[1], "amplitude": np.max(np.abs(V), axis=0),
             "amplitude_centred": np.max(np.abs(V - V.mean(axis=0)), axis=0),
             "amplitude_states": list(ctx.system.states), "n_mesh": int(M)}
 
 
 def _special(ctx, kind, i, y, M, prec) -> SpecialPoint:
     n = ctx.n
-    return SpecialPoint(kind=kind, param=float(y[M * n + 1]), index=i,
-                        bracket=(float(ctx.run.ys[i][-1]), float(ctx.run.ys[i + 1][-1])),
+    run = ctx.run
+    return SpecialPoint(kind=kind, param=ctx.lam(y, M), index=i,
+                        bracket=(ctx.lam(run.ys[i], run.meshes[i]),
+                                 ctx.lam(run.ys[i + 1], run.meshes[i + 1])),
                         solution=np.asarray(y[: M * n + 1]), precision=prec,
                         data=_point_data(ctx, y, M))
 
@@ -117,7 +160,8 @@ def _special(ctx, kind, i, y, M, prec) -> SpecialPoint:
 def _context(ctx: BracketContext, y: np.ndarray, M: int) -> dict[str, Any]:
     stage = ctx.stage_of(M)
     return {"problem": stage.problem, "args": stage.args(y, None), "weights": stage.weights,
-            "y": y, "multipliers": lambda: ctx.multipliers(y, M), "n_states": ctx.n}
+            "y": y, "multipliers": lambda: ctx.multipliers(y, M),
+            "n_nontrivial": ctx.n_nontrivial}
 
 
 # ------------------------------------------------------------------------ verifiers
@@ -157,7 +201,7 @@ def verify_branch_point(point: SpecialPoint, context: Mapping[str, Any]) -> Verd
 
 def _orbit_checks(context: Mapping[str, Any]) -> list[Check]:
     return [residual_check(context),
-            Check.at_least("nontrivial_multipliers", float(context["n_states"] - 1), 2.0)]
+            Check.at_least("nontrivial_multipliers", float(context["n_nontrivial"]), 2.0)]
 
 
 @register_verifier("period_doubling")
@@ -197,15 +241,23 @@ def _counts(mults: np.ndarray, logm: np.ndarray) -> tuple[int, int, int]:
     return int(np.sum(neg)), int(np.sum(cplx)), int(np.sum(pos))
 
 
+def _nearest(mults: np.ndarray, logm: np.ndarray, target: float) -> float:
+    """``log|mu|`` of the multiplier nearest ``target`` (+1 or -1) in its half plane: a
+    test function that stays continuous where a complex pair collides on the real axis
+    and one of the two real multipliers then moves through ``target``."""
+    half = mults.real * target > 0
+    if not np.any(half):
+        return math.nan
+    k = int(np.argmin(np.abs(mults[half] - target)))
+    return float(logm[half][k])
+
+
 def _bp_test(mults: np.ndarray, logm: np.ndarray) -> float:
-    pos = np.abs(np.angle(mults)) <= COMPLEX_ARG
-    return float(logm[pos][np.argmin(np.abs(logm[pos]))]) if np.any(pos) else math.nan
+    return _nearest(mults, logm, 1.0)
 
 
 def _pd_test(mults: np.ndarray, logm: np.ndarray) -> float:
-    ang = np.abs(np.angle(mults))
-    neg = ang >= np.pi - COMPLEX_ARG
-    return float(logm[neg][np.argmin(np.abs(logm[neg]))]) if np.any(neg) else math.nan
+    return _nearest(mults, logm, -1.0)
 
 
 def _torus_test(mults: np.ndarray, logm: np.ndarray) -> float:
@@ -258,10 +310,13 @@ def _bisect_branch_point(ctx: BracketContext, i: int) -> tuple[np.ndarray, int, 
 def find_orbit_special_points(findings: Findings, ctx: BracketContext, params: np.ndarray
                               ) -> None:
     """Detect, locate and verify cycle folds, branch points, period doublings and torus
-    points along an orbit run; the outcomes go to ``findings``."""
-    run, n = ctx.run, ctx.n
+    points along an orbit run; the outcomes go to ``findings``. For forced responses the
+    folds are left to the caller (``_forced``: verified as folds of the response)."""
+    run = ctx.run
     for i, kind, y_e, prec, M in run.events:
         bracket = (params[i], params[i + 1])
+        if kind == "fold" and not ctx.autonomous:
+            continue
         if kind == "fold":
             if y_e is None:
                 findings.flag("cycle_fold", bracket, "the parameter turned between these "
@@ -270,7 +325,7 @@ def find_orbit_special_points(findings: Findings, ctx: BracketContext, params: n
             findings.confirm("cycle_fold", bracket,
                              lambda i=i, y=y_e, M=M, prec=prec: _special(ctx, "cycle_fold", i,
                                                                          y, M, prec),
-                             context=_context(ctx, y_e, M), index=i)
+                             context=_context(ctx, y_e, M), index=i, slack=ctx.step(i))
         elif kind == "branch_point":
             found = _bisect_branch_point(ctx, i)
             if found is None:
@@ -290,7 +345,7 @@ def find_orbit_special_points(findings: Findings, ctx: BracketContext, params: n
             continue
         a, b = _counts(*fl.nontrivial(i)), _counts(*fl.nontrivial(i + 1))
         tests = [("branch_point", a[2] != b[2] and i not in turned, _bp_test)]
-        if n >= 3:  # a planar orbit has one non-trivial multiplier, real and positive
+        if ctx.n_nontrivial >= 2:  # a planar orbit's one is real and positive
             tests += [("period_doubling", a[0] != b[0], _pd_test),
                       ("torus", a[1] != b[1], _torus_test)]
         for kind, changed, test in tests:

@@ -26,7 +26,13 @@ import numpy as np
 
 from bifid.continuation._branch import Branch, SpecialPoint
 from bifid.continuation._floquet import Floquet, autonomous_rhs, floquet
-from bifid.continuation._mesh import AdaptiveRun, MeshPolicy, Stage, on_common_mesh
+from bifid.continuation._mesh import (
+    AdaptiveRun,
+    MeshPolicy,
+    Stage,
+    on_common_mesh,
+    run_residuals,
+)
 from bifid.continuation._options import ContinuationOptions
 from bifid.continuation._orbit_bifurcations import BracketContext, find_orbit_special_points
 from bifid.continuation._verify import LOCATION_ERRORS, Findings
@@ -147,8 +153,7 @@ def orbit_branch(system: System, param: str, p, run: AdaptiveRun, options: Conti
     if zero[-1] and len(zero) > 1 and status == "hopf":
         label[-1] = label[-2] if np.isfinite(label[-2]) else np.nan
     stable = np.nan_to_num(label, nan=0.0).astype(bool) if np.all(np.isfinite(label)) else label
-    residual = np.array([np.max(np.abs(np.asarray(stage_of(m).problem.residual(
-        jnp.asarray(y), a)))) for y, m, a in zip(run.ys, run.meshes, run.args, strict=True)])
+    residual = run_residuals(run, stage_of)
     meta.update({"n_mesh": int(M), "states": list(system.states), "start_param": start.param,
                  "start_kind": start.kind, "max_mesh": policy.max_mesh,
                  "resolution_tol": policy.tol})

@@ -247,6 +247,12 @@ def _same_point(a: SpecialPoint, b: SpecialPoint) -> bool:
         np.max(np.abs(sa - sb), initial=0.0) <= 1e-7 * (1.0 + np.max(np.abs(sa), initial=0.0)))
 
 
+def _neighbours(a: tuple[float, float], b: tuple[float, float]) -> bool:
+    """Two brackets of a branch that share an end point or overlap."""
+    tol = 1e-12 * max(1.0, *map(abs, (*a, *b)))
+    return min(a) <= max(b) + tol and min(b) <= max(a) + tol
+
+
 def _one_line(exc: BaseException) -> str:
     text = str(exc).strip().splitlines()
     return text[0] if text else type(exc).__name__
@@ -261,8 +267,14 @@ class Findings:
     branch: int = 0
 
     def add(self, result: SpecialPoint | Candidate) -> SpecialPoint | Candidate:
-        """Add the outcome of :func:`confirm` to the right list (a point located a second
-        time from another bracket becomes a candidate: its own crossing was not located)."""
+        """Add the outcome of :func:`confirm` to the right list.
+
+        A point located a second time from another bracket becomes a candidate (its own
+        crossing was not located), except a fold (:data:`EXTREMAL_KINDS`) seen again from a
+        neighbouring bracket: at a fold that lies on a point of the branch, the tangent's
+        parameter component is zero to rounding there and may change sign in both
+        intervals that share the point — one fold, reported once (the first result is
+        returned)."""
         if isinstance(result, SpecialPoint) and not (result.status == "converged"
                                                      and result.verification):
             raise BifidInputError(  # only confirm() makes a located point
@@ -273,6 +285,8 @@ class Findings:
             if twin is None:
                 self.points.append(result)
                 return result
+            if result.kind in EXTREMAL_KINDS and _neighbours(twin.bracket, result.bracket):
+                return twin
             result = Candidate(result.kind, result.bracket,
                                f"Newton converged to the point already located at "
                                f"{twin.param:.10g}", self.branch)
