@@ -17,9 +17,7 @@ import jax.numpy as jnp
 import numpy as np
 
 
-def fit_sindy(
-    records, threshold: float = 0.05, degree: int = 3, smooth: int = 0
-) -> dict[str, Any]:
+def fit_sindy(records, threshold: float = 0.05, degree: int = 3, smooth: int = 0) -> dict[str, Any]:
     """Fit SINDy to the stable records ``(param, signals, fs, stable)``; return the model.
 
     ``smooth``: if > 0, derivatives by pysindy's ``SmoothedFiniteDifference`` with a
@@ -35,8 +33,15 @@ def fit_sindy(
     model = ps.SINDy(
         feature_library=ps.PolynomialLibrary(degree=degree),
         optimizer=ps.STLSQ(threshold=threshold, alpha=1e-6),
-        **({"differentiation_method": ps.SmoothedFiniteDifference(
-            smoother_kws={"window_length": int(smooth), "polyorder": 3})} if smooth else {}),
+        **(
+            {
+                "differentiation_method": ps.SmoothedFiniteDifference(
+                    smoother_kws={"window_length": int(smooth), "polyorder": 3}
+                )
+            }
+            if smooth
+            else {}
+        ),
     )
     model.fit(
         [x / scale for x in X],
@@ -96,11 +101,19 @@ def analyse(fit: dict[str, Any], p_range=(12.0, 22.0)) -> dict[str, Any]:
 
     system = sindy_system(fit)
     lo, hi = p_range
-    out: dict[str, Any] = {"n_terms": fit["n_terms"], "fit_time": fit["fit_time"],
-                           "hopf": None, "fold": None}
+    out: dict[str, Any] = {
+        "n_terms": fit["n_terms"],
+        "fit_time": fit["fit_time"],
+        "hopf": None,
+        "fold": None,
+    }
     try:
-        eq = equilibria(system, "U", start=lo, options=ContinuationOptions(
-            p_min=lo, p_max=hi, ds=0.05, ds_max=0.5, max_steps=500))
+        eq = equilibria(
+            system,
+            "U",
+            start=lo,
+            options=ContinuationOptions(p_min=lo, p_max=hi, ds=0.05, ds_max=0.5, max_steps=500),
+        )
     except Exception as exc:
         out["error"] = f"equilibria: {type(exc).__name__}: {exc}"[:300]
         return out
@@ -109,26 +122,34 @@ def analyse(fit: dict[str, Any], p_range=(12.0, 22.0)) -> dict[str, Any]:
         out["error"] = "no Hopf point of the SINDy model in the range"
         return out
     hp = hopfs[0]
-    out.update(hopf=float(hp.param), hopf_status=hp.status,
-               criticality=hp.data.get("criticality"))
+    out.update(hopf=float(hp.param), hopf_status=hp.status, criticality=hp.data.get("criticality"))
     if "eigenvector" not in hp.data:
         try:
-            hp = locate_hopf(system, "U", np.asarray(hp.solution), float(hp.param),
-                             system.param_vector({"U": float(hp.param)}),
-                             omega_guess=hp.data.get("omega"))
-            out.update(hopf=float(hp.param), hopf_status="located",
-                       criticality=hp.data.get("criticality"))
+            hp = locate_hopf(
+                system,
+                "U",
+                np.asarray(hp.solution),
+                float(hp.param),
+                system.param_vector({"U": float(hp.param)}),
+                omega_guess=hp.data.get("omega"),
+            )
+            out.update(
+                hopf=float(hp.param), hopf_status="located", criticality=hp.data.get("criticality")
+            )
         except Exception as exc:
             out["error"] = f"locate_hopf: {type(exc).__name__}: {exc}"[:300]
             return out
     try:
-        br = hopf_orbits(system, hp, n_mesh=32, options=ContinuationOptions(
-            p_min=lo, p_max=hi, ds=0.02, ds_max=0.2, max_steps=300))
+        br = hopf_orbits(
+            system,
+            hp,
+            n_mesh=32,
+            options=ContinuationOptions(p_min=lo, p_max=hi, ds=0.02, ds_max=0.2, max_steps=300),
+        )
         folds = [sp.param for sp in br.special_points if sp.kind == "cycle_fold"]
         out["fold"] = float(folds[0]) if folds else None
         if not folds:
-            out["error"] = (f"no fold of cycles (branch ended: {br.status}, "
-                            f"{len(br.params)} orbits)")
+            out["error"] = f"no fold of cycles (branch ended: {br.status}, {len(br.params)} orbits)"
     except Exception as exc:
         out["error"] = f"hopf_orbits: {type(exc).__name__}: {exc}"[:300]
     return out

@@ -1,4 +1,4 @@
-"""Benchmark of the hybrid normal-form + NN Hopf model (thesis ch. 5, issue 5 §3).
+"""Benchmark of the hybrid normal-form + NN Hopf model (thesis ch. 5).
 
 Sections (each can be skipped with --skip NAME):
 
@@ -12,8 +12,9 @@ Sections (each can be skipped with --skip NAME):
   ``bifid.data``): Hopf and fold against the thesis (17.67, 14.66 m/s), leave-one-out
   amplitude errors per orbit, figures like Figs. 5.6–5.8 in ``docs/figures/``.
 
-Run ``python benchmarks/bench_hopf_hybrid.py`` (about 20–40 min on a loaded 2-core machine);
-writes the ``hopf_hybrid`` section of BENCHMARKS.md and the figures.
+Run ``python benchmarks/bench_hopf_hybrid.py`` (about 20–40 min on a loaded 2-core machine;
+``--quick``: the flutter section only); writes the ``hopf_hybrid`` section of BENCHMARKS.md
+and the figures.
 """
 
 from __future__ import annotations
@@ -37,18 +38,17 @@ import jax  # noqa: E402
 
 import bifid  # noqa: E402, F401
 
-jax.config.update("jax_compilation_cache_dir", os.environ.get(
-    "BIFID_JAX_CACHE", str(ROOT / ".jax_cache")))
+jax.config.update(
+    "jax_compilation_cache_dir", os.environ.get("BIFID_JAX_CACHE", str(ROOT / ".jax_cache"))
+)
 jax.config.update("jax_persistent_cache_min_compile_time_secs", 1.0)
 
-from bifid.identify._hopf_figures import (  # noqa: E402
-    diagram_figure,
-    portraits_figure,
-    save_figure,
-    series_figure,
-)
-from bifid.identify._hopf_synthetic import ContinuationTruth, simulated_records  # noqa: E402
-from bifid.identify.hopf_hybrid import HopfHybridModel  # noqa: E402
+from bifid.continuation import Branch, Diagram  # noqa: E402
+from bifid.continuation.truth import ContinuationTruth, simulated_records  # noqa: E402
+from bifid.identify import HopfHybridModel, as_lco_data  # noqa: E402
+from bifid.identify.hopf_hybrid import portraits_figure, series_figure  # noqa: E402
+from bifid.report import plot_diagram, save_figure  # noqa: E402
+from bifid.signal import max_abs  # noqa: E402
 
 VDP_TRAIN = np.linspace(0.1, 1.0, 6)
 VDP_TEST = np.array([0.19, 0.37, 0.55, 0.73, 0.91])
@@ -61,6 +61,45 @@ FL_SIGNALS = ("h", "alpha", "hd", "alphad")
 
 def log(msg: str) -> None:
     print(f"[bench_hopf_hybrid {time.strftime('%H:%M:%S')}] {msg}", file=sys.stderr, flush=True)
+
+
+def diagram_figure(model, data=None, *, param_range, truth=None, title: str = ""):
+    """The model's predicted diagram over ``param_range`` with the training cycles and, when
+    given, the continuation of the true system (all through :func:`plot_diagram`)."""
+    diagrams = [model.predict_diagram(range=param_range, n_points=200)]
+    labels = ["hybrid model"]
+    if data is not None:
+        diagrams.append(as_lco_data(data).diagram())
+        labels.append("training cycles")
+    if truth is not None:
+        keep = (truth.params >= param_range[0]) & (truth.params <= param_range[1])
+        amps = np.array([max_abs(v) for v in truth.orbits[keep]])
+        branch = Branch(
+            kind="periodic",
+            system="truth",
+            param=truth.param,
+            params=truth.params[keep],
+            solutions=np.zeros((int(keep.sum()), 0)),
+            stable=truth.stable[keep],
+            special_points=[],
+            data={"amplitude": amps},
+            p=truth.p,
+            status="range",
+            message="",
+            signals=tuple(truth.system.states),
+        )
+        diagrams.append(
+            Diagram(
+                kind="bifurcation",
+                system="truth",
+                param=truth.param,
+                branches=[branch],
+                source="continuation",
+            )
+        )
+        labels.append("continuation (truth)")
+    names = [model.state_.signal_names[i] for i in model.state_.plane]
+    return plot_diagram(*diagrams, labels=labels, signals=names, title=title)
 
 
 def stage_table(timings: dict[str, float]) -> str:
@@ -88,12 +127,25 @@ def bench_vdp() -> tuple[str, dict]:
     ts = model.predict_time_series(mu, np.arange(n) / fs, initial=ys[0])
     rms = np.sqrt(np.mean((ts - ys[:n]) ** 2, axis=0)) / np.sqrt(np.mean(ys[:n] ** 2, axis=0))
     hopf = model.hopf_point()["param"]
-    save_figure(diagram_figure(model, train, param_range=(-0.1, 1.1), title=(
-        "Van der Pol: hybrid model (band: 5-member ensemble), training cycles")),
-        FIGURES / "hopf-hybrid-vdp-diagram.png")
-    save_figure(series_figure(model, test, signal="z1", periods=1.5,
-                              title="Van der Pol at untrained mu: simulation vs model"),
-                FIGURES / "hopf-hybrid-vdp-series.png")
+    save_figure(
+        diagram_figure(
+            model,
+            as_lco_data(train, ["z1", "z2"]),
+            param_range=(-0.1, 1.1),
+            title="Van der Pol: hybrid model, training cycles",
+        ),
+        FIGURES / "hopf-hybrid-vdp-diagram.png",
+    )
+    save_figure(
+        series_figure(
+            model,
+            as_lco_data(test, ["z1", "z2"]),
+            signal="z1",
+            periods=1.5,
+            title="Van der Pol at untrained mu: simulation vs model",
+        ),
+        FIGURES / "hopf-hybrid-vdp-series.png",
+    )
     rows = ["| mu (untrained) | z1 error | z2 error |", "|---:|---:|---:|"]
     for m_, e in zip(VDP_TEST, amp_err, strict=True):
         rows.append(f"| {m_:.2f} | {100 * e[0]:.2f} % | {100 * e[1]:.2f} % |")
@@ -106,10 +158,11 @@ def bench_vdp() -> tuple[str, dict]:
 | time-series RMS error, one period at mu = 0.55 (z1, z2) | {100 * rms[0]:.2f} %, \
 {100 * rms[1]:.2f} % | 5 % |
 
-Selected: polar harmonics {model.n_harmonics_}, lambda = {model.regularization_:g},
+Selected: polar harmonics {model.state_.map_config.n_harmonics}, lambda =
+{model.regularization_:g},
 {model.n_iterations_} L-BFGS iterations (leave-one-out), speed harmonics
 {model.omega_harmonics}, ensemble spread of the Hopf point
-{model.parameters()['ensemble']['mu0']['std']:.1e}.
+{model.summary()["ensemble"]["mu0"]["std"]:.1e}.
 
 {chr(10).join(rows)}
 
@@ -117,8 +170,12 @@ Selected: polar harmonics {model.n_harmonics_}, lambda = {model.regularization_:
 
 ![vdp](docs/figures/hopf-hybrid-vdp-diagram.png)
 """
-    return md, {"hopf": hopf, "amp_err_max": float(amp_err.max()), "ts_rms": rms.tolist(),
-                "timings": model.timings_}
+    return md, {
+        "hopf": hopf,
+        "amp_err_max": float(amp_err.max()),
+        "ts_rms": rms.tolist(),
+        "timings": model.timings_,
+    }
 
 
 # ----------------------------------------------------------------------- flutter
@@ -126,8 +183,8 @@ def flutter_errors(model, truth) -> dict:
     amp, freq, rows = [], [], []
     for values, stable in ((FL_TEST_STABLE, True), (FL_TEST_UNSTABLE, False)):
         branch = "stable" if stable else "unstable"
-        pa = model.predict_amplitude(values, branch)
-        pf = model.predict_frequency(values, branch)
+        pa = model.predict_amplitude(values, stable=stable)
+        pf = model.predict_frequency(values, stable=stable)
         for k, u in enumerate(values):
             ta = truth.amplitude(u, stable, FL_SIGNALS)
             tf = truth.frequency(u, stable)
@@ -152,7 +209,10 @@ def _as_dataset(recs):
 
     return lco_dataset(
         [LCORecord(param=u, signals=z, sample_rate=fs, stable=st) for u, z, fs, st in recs],
-        list(FL_SIGNALS), param_name="U", param_units="m/s", system="flutter",
+        list(FL_SIGNALS),
+        param_name="U",
+        param_units="m/s",
+        system="flutter",
         source="continuation (bench_hopf_hybrid)",
         signal_units={"h": "m", "alpha": "rad", "hd": "m/s", "alphad": "rad/s"},
     )
@@ -177,43 +237,44 @@ def bench_flutter() -> tuple[str, dict, list]:
         # the thesis's setting for comparison of speed: fixed hyperparameters, one member
     log("flutter: fixed-hyperparameter fit (timing)")
     m0 = results[0.0][0]
-    fixed = HopfHybridModel(n_ensemble=1, regularization=m0.regularization_,
-                            stopping=m0.n_iterations_, omega_regularization=1e-4)
+    fixed = HopfHybridModel(
+        n_ensemble=1,
+        regularization=m0.regularization_,
+        stopping=m0.n_iterations_,
+        omega_regularization=1e-4,
+    )
     c0 = time.process_time()
     fixed.fit(_as_dataset(records[0.0]))
     cpu_fixed = time.process_time() - c0
     model, e0 = results[0.0]
     _, e1 = results[0.01]
 
-    def reference(name):
-        idx = FL_SIGNALS.index(name)
-        out_p, out_a, out_s = [], [], []
-        for u in np.linspace(14.95, 20.0, 40):
-            out_p.append(u)
-            out_a.append(truth.amplitude(u, True, FL_SIGNALS)[idx])
-            out_s.append(True)
-        out_p.append(np.nan)
-        out_a.append(np.nan)
-        out_s.append(True)
-        for u in np.linspace(14.95, 18.27, 30):
-            out_p.append(u)
-            out_a.append(truth.amplitude(u, False, FL_SIGNALS)[idx])
-            out_s.append(False)
-        return np.asarray(out_p), np.asarray(out_a), np.asarray(out_s)
-
-    save_figure(diagram_figure(model, _as_dataset(records[0.0]), param_range=(14.0, 20.0),
-                               reference=reference,
-                               title="flutter model: hybrid model vs continuation (grey)"),
-                FIGURES / "hopf-hybrid-flutter-diagram.png")
-    rows = ["| speed | branch | h | alpha | hd | alphad | frequency |",
-            "|---:|---|---:|---:|---:|---:|---:|"]
+    save_figure(
+        diagram_figure(
+            model,
+            _as_dataset(records[0.0]),
+            param_range=(14.0, 20.0),
+            truth=truth,
+            title="flutter model: hybrid model vs continuation",
+        ),
+        FIGURES / "hopf-hybrid-flutter-diagram.png",
+    )
+    rows = [
+        "| speed | branch | h | alpha | hd | alphad | frequency |",
+        "|---:|---|---:|---:|---:|---:|---:|",
+    ]
     for u, br, e, f in e0["rows"]:
-        rows.append(f"| {u:.2f} | {br} | " + " | ".join(f"{100 * v:.2f} %" for v in e)
-                    + f" | {100 * f:.3f} % |")
+        rows.append(
+            f"| {u:.2f} | {br} | "
+            + " | ".join(f"{100 * v:.2f} %" for v in e)
+            + f" | {100 * f:.3f} % |"
+        )
 
     def line(name, key, bound, fmt, scale=1.0, unit=""):
-        return (f"| {name} | {fmt.format(scale * e0[key])}{unit} | "
-                f"{fmt.format(scale * e1[key])}{unit} | {bound} |")
+        return (
+            f"| {name} | {fmt.format(scale * e0[key])}{unit} | "
+            f"{fmt.format(scale * e1[key])}{unit} | {bound} |"
+        )
 
     md = f"""### Flutter model (§5.4.2: 4 stable + 4 unstable cycles, 1 s at 1 kHz)
 
@@ -236,7 +297,7 @@ Noise-free, per untrained speed:
 {chr(10).join(rows)}
 
 Time per stage, full fit (leave-one-out selection of lambda and stopping over
-{len(m0.cv_.get('grid', []))} values × 8 folds, then a 5-member ensemble). Wall
+{len(m0.cv_.get("grid", []))} values × 8 folds, then a 5-member ensemble). Wall
 {cpu[0.0][1]:.1f} s, CPU {cpu[0.0][0]:.1f} s (all threads of the process; the difference is
 the other jobs on the machine); with 1 % noise wall {cpu[0.01][1]:.1f} s, CPU
 {cpu[0.01][0]:.1f} s. Compile times are those of this run: near zero when the persistent
@@ -253,12 +314,19 @@ where they were tuned by hand):
 
 ![flutter](docs/figures/hopf-hybrid-flutter-diagram.png)
 """
-    return md, {"noise_free": {k: v for k, v in e0.items() if k != "rows"},
-                "noise_1pc": {k: v for k, v in e1.items() if k != "rows"},
-                "timings": m0.timings_, "timings_fixed": fixed.timings_,
-                "cpu_wall": {str(k): v for k, v in cpu.items()}, "cpu_fixed": cpu_fixed,
-                "truth": {"hopf": truth.hopf_param, "fold": truth.fold_param}}, \
-        [truth, records, results[0.0][0], results[0.01][0]]
+    return (
+        md,
+        {
+            "noise_free": {k: v for k, v in e0.items() if k != "rows"},
+            "noise_1pc": {k: v for k, v in e1.items() if k != "rows"},
+            "timings": m0.timings_,
+            "timings_fixed": fixed.timings_,
+            "cpu_wall": {str(k): v for k, v in cpu.items()},
+            "cpu_fixed": cpu_fixed,
+            "truth": {"hopf": truth.hopf_param, "fold": truth.fold_param},
+        },
+        [truth, records, results[0.0][0], results[0.01][0]],
+    )
 
 
 # ------------------------------------------------------------------------- sindy
@@ -266,15 +334,23 @@ def bench_sindy(truth, records, model, model_noisy) -> tuple[str, dict]:
     from _sindy_hopf import analyse, fit_sindy
 
     rows = ["| model | data used | Hopf [m/s] | fold [m/s] | note |", "|---|---|---:|---:|---|"]
-    rows.append(f"| continuation (truth) | — | {truth.hopf_param:.3f} | "
-                f"{truth.fold_param:.3f} | |")
+    rows.append(f"| continuation (truth) | — | {truth.hopf_param:.3f} | {truth.fold_param:.3f} | |")
     for m, tag in ((model, "noise-free"), (model_noisy, "1 % noise")):
-        rows.append(f"| bifid hopf_hybrid | 4 stable + 4 unstable cycles, {tag} | "
-                    f"{m.hopf_point()['param']:.3f} | {m.cycle_fold()['param']:.3f} | |")
+        rows.append(
+            f"| bifid hopf_hybrid | 4 stable + 4 unstable cycles, {tag} | "
+            f"{m.hopf_point()['param']:.3f} | {m.cycle_fold()['param']:.3f} | |"
+        )
     out = {}
     # (noise, STLSQ threshold, Savitzky-Golay window of the derivative: 0 = plain FD)
-    runs = ((0.0, 0.05, 0), (0.0, 0.2, 0), (0.01, 0.05, 0), (0.01, 0.05, 31),
-            (0.01, 0.2, 31), (0.01, 0.5, 31), (0.01, 0.2, 61))
+    runs = (
+        (0.0, 0.05, 0),
+        (0.0, 0.2, 0),
+        (0.01, 0.05, 0),
+        (0.01, 0.05, 31),
+        (0.01, 0.2, 31),
+        (0.01, 0.5, 31),
+        (0.01, 0.2, 61),
+    )
     for noise, thr, smooth in runs:
         log(f"sindy: noise {noise}, threshold {thr}, smoothed {smooth}")
         fit = fit_sindy(records[noise], threshold=thr, smooth=smooth)
@@ -285,8 +361,10 @@ def bench_sindy(truth, records, model, model_noisy) -> tuple[str, dict]:
         note = f"{res['n_terms']} terms" + (f"; {res['error'][:110]}" if "error" in res else "")
         tag = "noise-free" if noise == 0 else "1 % noise"
         diff = f"smoothed FD, window {smooth}" if smooth else "FD"
-        rows.append(f"| SINDy (cubic, STLSQ threshold {thr}, {diff}) | 4 stable cycles (h, "
-                    f"alpha, hd, alphad), {tag} | {hopf} | {fold} | {note} |")
+        rows.append(
+            f"| SINDy (cubic, STLSQ threshold {thr}, {diff}) | 4 stable cycles (h, "
+            f"alpha, hd, alphad), {tag} | {hopf} | {fold} | {note} |"
+        )
     md = f"""### Comparison with SINDy (pysindy)
 
 SINDy fitted to the same stable-cycle time series (it learns from trajectories, so the four
@@ -319,35 +397,59 @@ def bench_rig() -> tuple[str, dict]:
     model = HopfHybridModel(n_ensemble=5, progress=True).fit(ds)
     log("rig: leave-one-out")
     cv = model.cross_validate(ds)
-    save_figure(diagram_figure(model, ds, param_range=(14.0, 19.0),
-                               title="flutter rig (cbc_model1): hybrid model and PP-CBC data"),
-                FIGURES / "hopf-hybrid-rig-diagram.png")
-    save_figure(portraits_figure(model, ds, title="flutter rig: measured vs model phase "
-                                                  "portraits (h [m], alpha [rad])"),
-                FIGURES / "hopf-hybrid-rig-portraits.png")
-    save_figure(series_figure(model, ds, signal="h", periods=3.0,
-                              title="flutter rig: heave time series, measured vs model"),
-                FIGURES / "hopf-hybrid-rig-series.png")
-    rows = ["| wind speed | branch | heave error | pitch error | frequency error | fold model: "
-            "Hopf / fold |", "|---:|---|---:|---:|---:|---|"]
+    save_figure(
+        diagram_figure(
+            model,
+            ds,
+            param_range=(14.0, 19.0),
+            title="flutter rig (cbc_model1): hybrid model and PP-CBC data",
+        ),
+        FIGURES / "hopf-hybrid-rig-diagram.png",
+    )
+    save_figure(
+        portraits_figure(
+            model, ds, title="flutter rig: measured vs model phase portraits (h [m], alpha [rad])"
+        ),
+        FIGURES / "hopf-hybrid-rig-portraits.png",
+    )
+    save_figure(
+        series_figure(
+            model,
+            ds,
+            signal="h",
+            periods=3.0,
+            title="flutter rig: heave time series, measured vs model",
+        ),
+        FIGURES / "hopf-hybrid-rig-series.png",
+    )
+    rows = [
+        "| wind speed | branch | heave error | pitch error | frequency error | fold model: "
+        "Hopf / fold |",
+        "|---:|---|---:|---:|---:|---|",
+    ]
     for f in cv["folds"]:
         br = "stable" if f["stable"] else "unstable"
         fold = f"{f['fold']:.2f}" if f["fold"] is not None else "none"
         if "amplitude_error" in f:
             e = f["amplitude_error"]
-            rows.append(f"| {f['param']:.1f} | {br} | {100 * e['h']:.1f} % | "
-                        f"{100 * e['alpha']:.1f} % | {100 * f['frequency_error']:.2f} % | "
-                        f"{f['hopf']:.2f} / {fold} |")
+            rows.append(
+                f"| {f['param']:.1f} | {br} | {100 * e['h']:.1f} % | "
+                f"{100 * e['alpha']:.1f} % | {100 * f['frequency_error']:.2f} % | "
+                f"{f['hopf']:.2f} / {fold} |"
+            )
         else:
-            why = ("the fold model's Hopf point is below this speed: no cycle there"
-                   if f["hopf"] < f["param"] else "no cycle on this branch in the fold model")
-            rows.append(f"| {f['param']:.1f} | {br} | — | — | — | {f['hopf']:.2f} / {fold} "
-                        f"({why}) |")
-    p = model.parameters()
-    ens = p["ensemble"]
+            why = (
+                "the fold model's Hopf point is below this speed: no cycle there"
+                if f["hopf"] < f["param"]
+                else "no cycle on this branch in the fold model"
+            )
+            rows.append(
+                f"| {f['param']:.1f} | {br} | — | — | — | {f['hopf']:.2f} / {fold} ({why}) |"
+            )
+    summary = model.summary()
+    p, ens = summary["parameters"], summary["ensemble"]
     fold = f"{p['fold']:.2f}" if p["fold"] is not None else "none"
-    fold_band = (f"{ens['fold']['min']:.2f}–{ens['fold']['max']:.2f}" if "fold" in ens
-                 else "—")
+    fold_band = f"{ens['fold']['min']:.2f}–{ens['fold']['max']:.2f}" if "fold" in ens else "—"
     md = f"""### Real flutter rig (`cbc_model1`, 4 stable + 5 unstable PP-CBC cycles)
 
 Imported with `bifid.data.flutter_cbc_dataset` (stored `Wind_sped`, heave in m, pitch in
@@ -355,10 +457,10 @@ rad, 20 s at 5 kHz each). The thesis used 4 stable and 3 unstable cycles.
 
 | quantity | bifid | thesis |
 |---|---:|---:|
-| Hopf (flutter) speed | {p['mu0']:.2f} m/s (ensemble {ens['mu0']['min']:.2f}–\
-{ens['mu0']['max']:.2f}) | 17.67 m/s |
+| Hopf (flutter) speed | {p["mu0"]:.2f} m/s (ensemble {ens["mu0"]["min"]:.2f}–\
+{ens["mu0"]["max"]:.2f}) | 17.67 m/s |
 | fold of cycles | {fold} m/s (ensemble {fold_band}) | 14.66 m/s |
-| flutter frequency | {p['hopf_omega'] / (2 * np.pi):.3f} Hz | ≈ 2.5 Hz |
+| flutter frequency | {p["hopf_omega"] / (2 * np.pi):.3f} Hz | ≈ 2.5 Hz |
 
 Leave-one-out (each cycle predicted by a model trained on the other eight; lambda =
 {model.regularization_:g} and {model.n_iterations_} iterations as selected on all data):
@@ -376,7 +478,10 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--skip", nargs="*", default=[], choices=["vdp", "flutter", "sindy", "rig"])
     ap.add_argument("--json", type=Path, help="Also write the numbers as JSON here.")
+    ap.add_argument("--quick", action="store_true", help="the flutter section only")
     args = ap.parse_args()
+    if args.quick:
+        args.skip = ["vdp", "sindy", "rig"]
     FIGURES.mkdir(parents=True, exist_ok=True)
     load = os.getloadavg()[0]
     parts = [
@@ -396,8 +501,10 @@ def main() -> None:
 
     def section(name: str, md: str | None) -> None:
         if md is not None:
-            md = (md.rstrip() + f"\n\n_Section measured {time.strftime('%H:%M', time.gmtime())}"
-                  f" UTC, load average {os.getloadavg()[0]:.1f}._\n")
+            md = (
+                md.rstrip() + f"\n\n_Section measured {time.strftime('%H:%M', time.gmtime())}"
+                f" UTC, load average {os.getloadavg()[0]:.1f}._\n"
+            )
             (keep / f"{name}.md").write_text(md)
             parts.append(md)
         elif (keep / f"{name}.md").exists():

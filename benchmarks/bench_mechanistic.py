@@ -1,4 +1,4 @@
-"""Benchmark of the mechanistic identification of thesis ch. 4 (issue 4).
+"""Benchmark of the mechanistic identification of thesis ch. 4.
 
 Writes the "mechanistic" section of BENCHMARKS.md, ``docs/figures/mechanistic_*.png`` and
 ``benchmarks/results/mechanistic.json``. Sections (``--sections``, default all):
@@ -10,7 +10,8 @@ Writes the "mechanistic" section of BENCHMARKS.md, ``docs/figures/mechanistic_*.
 - ``real``: the full three-stage pipeline on the flutter rig's raw files (free decay and
   ``cbc_model1``), with the thesis's curves.
 
-Run: ``cd benchmarks && ../.venv/bin/python bench_mechanistic.py``.
+Run: ``cd benchmarks && ../.venv/bin/python bench_mechanistic.py`` (``--quick``: the
+sections linear, nf and wd).
 """
 
 from __future__ import annotations
@@ -40,7 +41,7 @@ def log(msg: str) -> None:
 
 # ------------------------------------------------------------------------- linear
 def bench_linear() -> tuple[str, dict]:
-    from bifid.identify.linear_pem import LinearPEM
+    from bifid.identify import LinearPEM
     from bifid.simulate import simulate
     from bifid.systems import get_system
 
@@ -56,7 +57,7 @@ def bench_linear() -> tuple[str, dict]:
         rng = np.random.default_rng(seed)
         y = y0 + 0.01 * y0.std(axis=0) * rng.standard_normal(y0.shape)
         t0 = time.perf_counter()
-        m = LinearPEM("flutter", ("Ia", "ca", "ch"), params=start).fit(y, fs)
+        m = LinearPEM("flutter", ("Ia", "ca", "ch"), ("h", "alpha"), params=start).fit(y, fs)
         times.append(time.perf_counter() - t0)
         errs.append({k: m.params_[k] / v - 1 for k, v in true.items()})
     worst = {k: max(abs(e[k]) for e in errs) for k in true}
@@ -78,14 +79,14 @@ def bench_linear() -> tuple[str, dict]:
 # ---------------------------------------------------------------------- normal form
 def bench_nf() -> tuple[str, dict]:
     from bifid.continuation import correct, fourier_differentiation_matrix, orbit_problem
-    from bifid.identify.normal_form import hopf_normal_form, quadratic_cubic_structure
+    from bifid.identify.mechanistic import hopf_normal_form, quadratic_cubic_structure
     from bifid.signal import max_abs
     from bifid.systems import get_system
 
     sys_ = get_system("flutter")
     t0 = time.perf_counter()
     nf = hopf_normal_form(sys_, "U", guess=18.0)
-    s = quadratic_cubic_structure(sys_, nf)
+    s = quadratic_cubic_structure(sys_, nf, "ka2", "ka3")
     t_nf = time.perf_counter() - t0
     a1t, a2t = nf.tau_coefficients()
     other = max(abs(s["fit_relative"][k]) for k in ("1", "k2", "k2*k3", "k3^2"))
@@ -136,18 +137,20 @@ def bench_nf() -> tuple[str, dict]:
         f"Log-log slope of the relative error: **{slope:.3f}** (expected 0.5: the amplitude is "
         "O(√μ), the leading-order error O(μ)).",
     ]
-    return "\n".join(md), {"alpha1_tau": a1t, "c3_tau": s["c3_tau"], "c22_tau": s["c22_tau"],
-                           "slope": slope, "rows": rows, "U_H": nf.param_value}
+    return "\n".join(md), {
+        "alpha1_tau": a1t,
+        "c3_tau": s["c3_tau"],
+        "c22_tau": s["c22_tau"],
+        "slope": slope,
+        "rows": rows,
+        "U_H": nf.param_value,
+    }
 
 
 # --------------------------------------------------------------------- whole diagram
 def bench_wd() -> tuple[str, dict]:
-    from bifid.identify.mechanistic import (
-        LCOData,
-        OrbitSet,
-        model_branch,
-        whole_diagram_update,
-    )
+    from bifid.identify import LCOData
+    from bifid.identify.mechanistic import OrbitSet, model_branch, whole_diagram_update
     from bifid.systems import get_system
 
     sys_ = get_system("flutter")
@@ -156,10 +159,10 @@ def bench_wd() -> tuple[str, dict]:
     st = np.array([0, 0, 0, 0, 1, 1, 1, 1])
     t0 = time.perf_counter()
     br_true = model_branch(sys_, p, "U", n_mesh=48, guess=18.0, param_range=(14.0, 19.0))
-    probe = LCOData(U, np.zeros(8), st, ("h",), np.full(8, np.nan))
+    probe = LCOData.from_amplitudes(U, np.zeros((8, 1)), st, ("h",), param_name="U")
     o = OrbitSet(sys_, "U", 48, ("h",))
     o.match(br_true, probe, p)
-    data = LCOData(U, o.amplitudes(), st, ("h",), np.full(8, np.nan))
+    data = LCOData.from_amplitudes(U, o.amplitudes(), st, ("h",), param_name="U")
     fold_true = br_true.special("cycle_fold")[0].param
     hopf_true = float(br_true.meta["start_param"])
     log(f"truth data in {time.perf_counter() - t0:.1f} s; fold {fold_true:.4f}")
@@ -173,18 +176,36 @@ def bench_wd() -> tuple[str, dict]:
         t = time.perf_counter()
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            r = whole_diagram_update(sys_, p0, ("ka2", "ka3"), data, n_mesh=32,
-                                     gradient=grad, hopf_guess=18.2, max_iter=40)
+            r = whole_diagram_update(
+                sys_,
+                p0,
+                ("ka2", "ka3"),
+                data,
+                n_mesh=32,
+                gradient=grad,
+                hopf_guess=18.2,
+                max_iter=40,
+            )
         wall = time.perf_counter() - t
         br = model_branch(sys_, r.p, "U", n_mesh=48, guess=18.2, param_range=(14.0, 19.0))
         fold = br.special("cycle_fold")[0].param if br.special("cycle_fold") else float("nan")
-        out = {"start": [f2, f3], "gradient": grad, "time_s": wall,
-               "ka2": r.params["ka2"], "ka3": r.params["ka3"],
-               "err_ka2": r.params["ka2"] / 751.6 - 1, "err_ka3": r.params["ka3"] / 5006.7 - 1,
-               "fold": fold, "hopf": float(br.meta["start_param"]), "rms": r.rms,
-               "iterations": sum(1 for h in r.lm.history if h.get("iter", 0) > 0),
-               "converged": r.lm.converged, "jac_time_s": r.jac_time_s, "n_jev": r.n_jev,
-               "branch_time_s": r.branch_time_s}
+        out = {
+            "start": [f2, f3],
+            "gradient": grad,
+            "time_s": wall,
+            "ka2": r.params["ka2"],
+            "ka3": r.params["ka3"],
+            "err_ka2": r.params["ka2"] / 751.6 - 1,
+            "err_ka3": r.params["ka3"] / 5006.7 - 1,
+            "fold": fold,
+            "hopf": float(br.meta["start_param"]),
+            "rms": r.rms,
+            "iterations": sum(1 for h in r.history if h.get("iter", 0) > 0),
+            "converged": r.lm.converged,
+            "jac_time_s": r.jac_time_s,
+            "n_jev": r.n_jev,
+            "branch_time_s": r.branch_time_s,
+        }
         log(f"{grad} start {f2},{f3}: {wall:.1f} s -> {r.params}")
         return out
 
@@ -197,8 +218,10 @@ def bench_wd() -> tuple[str, dict]:
     fd_runs = [run(f2, f3, "fd") for f2, f3 in starts[:2]]
     imp = {tuple(r["start"]): r for r in runs}
     ratio = [f["time_s"] / imp[tuple(f["start"])]["time_s"] for f in fd_runs]
-    per_jac = {g: statistics.median(r["jac_time_s"] / r["n_jev"] for r in rs)
-               for g, rs in (("implicit", runs), ("fd", fd_runs))}
+    per_jac = {
+        g: statistics.median(r["jac_time_s"] / r["n_jev"] for r in rs)
+        for g, rs in (("implicit", runs), ("fd", fd_runs))
+    }
     jac_ratio = per_jac["fd"] / per_jac["implicit"]
     med = statistics.median(r["time_s"] for r in runs)
     md = [
@@ -213,17 +236,20 @@ def bench_wd() -> tuple[str, dict]:
         "of which branch continuations [s] | LM iterations | ka2 error | ka3 error | "
         f"fold [m/s] (true {fold_true:.4f}) | Hopf [m/s] (true {hopf_true:.4f}) |",
         "|---|---|---|---|---|---|---|---|---|---|",
-        *[f"| {r['start'][0]}, {r['start'][1]} | {r['gradient']} | {r['time_s']:.1f} | "
-          f"{r['jac_time_s']:.2f} ({r['n_jev']}) | {r['branch_time_s']:.1f} | "
-          f"{r['iterations']} | {r['err_ka2']:.1e} | {r['err_ka3']:.1e} | {r['fold']:.4f} | "
-          f"{r['hopf']:.4f} |" for r in runs + fd_runs],
+        *[
+            f"| {r['start'][0]}, {r['start'][1]} | {r['gradient']} | {r['time_s']:.1f} | "
+            f"{r['jac_time_s']:.2f} ({r['n_jev']}) | {r['branch_time_s']:.1f} | "
+            f"{r['iterations']} | {r['err_ka2']:.1e} | {r['err_ka3']:.1e} | {r['fold']:.4f} | "
+            f"{r['hopf']:.4f} |"
+            for r in runs + fd_runs
+        ],
         "",
         f"First run including JIT compilation: {compile_and_run:.1f} s (start 1.3, 0.7); "
         "then one fd run to compile the fd path, both left out of the table. "
         f"Median wall time after compilation (implicit): **{med:.1f} s** (target < 60 s). "
         f"Whole-run wall time fd / implicit, same starts: "
         f"{', '.join(f'{x:.2f}' for x in ratio)} — dominated by the branch continuations "
-        "between the steps of the data homotopy (the lead's `hopf_orbits`; its Floquet "
+        "between the steps of the data homotopy (`hopf_orbits`; its Floquet "
         "pass recompiles for every new branch length), which both variants share. "
         f"Time per Jacobian evaluation (median): implicit {per_jac['implicit'] * 1e3:.0f} ms, "
         f"finite differences {per_jac['fd'] * 1e3:.0f} ms — ratio fd / implicit "
@@ -234,18 +260,27 @@ def bench_wd() -> tuple[str, dict]:
         "the update first moves the parameters with the normal-form fit (alpha2 from the "
         "unstable LCOs), then follows the data homotopy.",
     ]
-    return "\n".join(md), {"runs": runs, "fd_runs": fd_runs, "warm": warm, "warm_fd": warm_fd,
-                           "per_jacobian_s": per_jac, "jacobian_ratio_fd_over_implicit":
-                           jac_ratio, "compile_and_run_s": compile_and_run, "median_s": med,
-                           "fold_true": fold_true, "hopf_true": hopf_true}
+    return "\n".join(md), {
+        "runs": runs,
+        "fd_runs": fd_runs,
+        "warm": warm,
+        "warm_fd": warm_fd,
+        "per_jacobian_s": per_jac,
+        "jacobian_ratio_fd_over_implicit": jac_ratio,
+        "compile_and_run_s": compile_and_run,
+        "median_s": med,
+        "fold_true": fold_true,
+        "hopf_true": hopf_true,
+    }
 
 
 # ----------------------------------------------------------------------------- real
 def _curve_at(curve_U, curve_A, U, stable: bool) -> float:
     """Amplitude of a thesis curve at U on the unstable (before its fold) or stable side."""
     k = int(np.argmin(curve_U))
-    seg_U, seg_A = (curve_U[: k + 1], curve_A[: k + 1]) if not stable else (
-        curve_U[k:], curve_A[k:])
+    seg_U, seg_A = (
+        (curve_U[: k + 1], curve_A[: k + 1]) if not stable else (curve_U[k:], curve_A[k:])
+    )
     order = np.argsort(seg_U)
     su, sa = seg_U[order], seg_A[order]
     if not su[0] <= U <= su[-1]:
@@ -254,76 +289,139 @@ def _curve_at(curve_U, curve_A, U, stable: bool) -> float:
 
 
 def bench_real() -> tuple[str, dict]:
+    from bifid.continuation import Branch, Diagram
     from bifid.data import flutter_cbc_dataset, load_free_decay, load_thesis_curves
-    from bifid.identify.mechanistic import LCOData, MechanisticModel, model_branch, plot_diagram
+    from bifid.identify import LCOData, MechanisticModel
+    from bifid.identify.mechanistic import model_branch
+    from bifid.report import plot_diagram, save_figure
     from bifid.systems import get_system
 
     sys_ = get_system("flutter")
     fd = load_free_decay(DATA / "free_decay" / "model1_free_decay.mat")
     ds = flutter_cbc_dataset(sorted((DATA / "cbc_model1").glob("*.mat")))
     g = fd.guesses
-    rig = {"I__alpha": "Ia", "c__alpha": "ca", "c__h": "ch", "k__alpha": "ka", "k__h": "kh",
-           "x__alpha": "xa", "m": "mw", "m__T": "mT", "b": "b", "a": "a", "rho": "rho"}
+    rig = {
+        "I__alpha": "Ia",
+        "c__alpha": "ca",
+        "c__h": "ch",
+        "k__alpha": "ka",
+        "k__h": "kh",
+        "x__alpha": "xa",
+        "m": "mw",
+        "m__T": "mT",
+        "b": "b",
+        "a": "a",
+        "rho": "rho",
+    }
     params = {rig[k]: float(v) for k, v in g.items() if k in rig}
-    data = LCOData.from_dataset(ds, ("h",))
+    data = LCOData.from_dataset(ds)
     t0 = time.perf_counter()
-    m = MechanisticModel("flutter", ("ka2", "ka3"), params=params, linear_ratios={"ka": "Ia"},
-                         param_ref="data", n_mesh=32)
+    m = MechanisticModel(
+        "flutter",
+        ("ka2", "ka3"),
+        params=params,
+        outputs=("h",),
+        linear_free=("Ia", "ca", "ch"),
+        linear_outputs=("h", "alpha"),
+        linear_ratios={"ka": "Ia"},
+        param_ref="data",
+        n_mesh=32,
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        m.fit(data, fd)
+        m.fit(data, free_decay=fd)
     wall = time.perf_counter() - t0
     log(f"real pipeline {wall:.1f} s: {m.params_}")
     lin = m.stages_["linear"]
-    flut = m.data_flutter_
-    curves = {name: load_thesis_curves(DATA / "thesis_curves" / f"{name}_id_Data_8-1.csv")
-              for name in ("linear", "nonlinear")}
+    flut = m.data_hopf_
+    curves = {
+        name: load_thesis_curves(DATA / "thesis_curves" / f"{name}_id_Data_8-1.csv")
+        for name in ("linear", "nonlinear")
+    }
     # diagrams of every stage
     branches = {}
     for stage, p in m.stage_p_.items():
         with warnings.catch_warnings():
             warnings.simplefilter("ignore")
-            branches[stage] = model_branch(sys_, p, "U", n_mesh=32, guess=18.0,
-                                           param_range=(11.0, 19.0))
-    others = []
-    styles = {"linear": ":", "normal_form": "--"}
-    for stage in ("linear", "normal_form"):
+            branches[stage] = model_branch(
+                sys_, p, "U", n_mesh=32, guess=18.0, param_range=(11.0, 19.0)
+            )
+    diagrams, labels = [], []
+    for stage in ("whole_diagram", "linear", "normal_form"):
         if stage in branches:
-            br = branches[stage]
-            others.append({"param": br.params, "amplitude": br.data["amplitude"][:, 0],
-                           "label": f"bifid after {stage.replace('_', '-')} stage",
-                           "style": styles[stage], "color": {"linear": "C1",
-                                                             "normal_form": "C2"}[stage]})
+            diagrams.append(
+                Diagram(
+                    kind="bifurcation",
+                    system="flutter",
+                    param="U",
+                    branches=[branches[stage]],
+                    source="mechanistic",
+                )
+            )
+            labels.append(f"bifid after the {stage.replace('_', '-')} stage")
     for name, c in curves.items():
-        others.append({"param": c.speed, "amplitude": c.heave_amp,
-                       "label": f"thesis curve {name}_id (Fig. 4.3/4.6)", "style": "-.",
-                       "color": {"linear": "C3", "nonlinear": "C4"}[name]})
+        n = len(c.speed)
+        curve = Branch(
+            kind="periodic",
+            system="thesis",
+            param="U",
+            params=np.asarray(c.speed),
+            solutions=np.zeros((n, 0)),
+            stable=np.ones(n, dtype=bool),
+            special_points=[],
+            data={"amplitude": np.asarray(c.heave_amp)[:, None]},
+            p=np.zeros(0),
+            status="range",
+            message="",
+            signals=("h",),
+        )
+        diagrams.append(
+            Diagram(
+                kind="bifurcation", system="thesis", param="U", branches=[curve], source="thesis"
+            )
+        )
+        labels.append(f"thesis curve {name}_id (Fig. 4.3/4.6)")
+    diagrams.append(data.diagram())
+    labels.append("measured LCOs (PP-CBC)")
     FIG.mkdir(parents=True, exist_ok=True)
     fig_path = FIG / "mechanistic_real.png"
-    plot_diagram([branches["whole_diagram"]], data, fig_path, output="h", scale=1000.0,
-                 unit="mm", label="bifid after whole-diagram stage", others=others,
-                 title="Flutter rig set-up 1: measured LCOs (PP-CBC) and identified models")
+    save_figure(
+        plot_diagram(
+            *diagrams,
+            labels=labels,
+            signals=["h"],
+            units={"h": "m"},
+            title="Flutter rig set-up 1: measured LCOs and identified models",
+        ),
+        fig_path,
+    )
     # table per LCO
     rows = []
     for j in range(len(data)):
         U, a, s = data.param[j], data.column("h")[j], data.stable[j]
-        pred = {st: m.stages_[st].get("predicted_amplitudes", [None] * len(data))[j]
-                for st in ("linear", "normal_form", "whole_diagram")}
+        pred = {
+            st: m.stages_[st].get("predicted_amplitudes", [None] * len(data))[j]
+            for st in ("linear", "normal_form", "whole_diagram")
+        }
         th = {n: _curve_at(c.speed, c.heave_amp, U, bool(s)) for n, c in curves.items()}
         rows.append((U, s, a, pred, th))
 
     def fmt(v):
-        return "—" if v is None or (isinstance(v, float) and not np.isfinite(v)) else \
-            f"{1000 * v:.2f}"
+        return (
+            "—" if v is None or (isinstance(v, float) and not np.isfinite(v)) else f"{1000 * v:.2f}"
+        )
 
     def rms(values):
-        pairs = [(p, r[2]) for p, r in zip(values, rows, strict=True)
-                 if p is not None and np.isfinite(p)]
+        pairs = [
+            (p, r[2]) for p, r in zip(values, rows, strict=True) if p is not None and np.isfinite(p)
+        ]
         return (float(np.sqrt(np.mean([(p - a) ** 2 for p, a in pairs]))), len(pairs))
 
     rms_th = {n: rms([r[4][n] for r in rows]) for n in curves}
-    st_rms = {st: (m.stages_[st].get("rms_all"), m.stages_[st].get("n_matched"))
-              for st in ("linear", "normal_form", "whole_diagram")}
+    st_rms = {
+        st: (m.stages_[st].get("rms_all"), m.stages_[st].get("n_matched"))
+        for st in ("linear", "normal_form", "whole_diagram")
+    }
     hopf = m.stages_["linear"]["hopf"]
     final = m.hopf_
     md = [
@@ -357,24 +455,32 @@ def bench_real() -> tuple[str, dict]:
         "",
         "| stage | ka2 | ka3 | cycle fold [m/s] | RMS heave error [mm] (LCOs matched) |",
         "|---|---|---|---|---|",
-        *[f"| {st} | {m.stage_p_[st][sys_.index('ka2')]:.1f} | "
-          f"{m.stage_p_[st][sys_.index('ka3')]:.1f} | "
-          f"{(m.stages_[st].get('cycle_fold') or float('nan')):.2f} | "
-          f"{fmt(st_rms[st][0])} ({st_rms[st][1]}/9) |"
-          for st in ("linear", "normal_form", "whole_diagram")],
-        *[f"| thesis curve {n}_id | — | — | {np.min(c.speed):.2f} | "
-          f"{fmt(rms_th[n][0])} ({rms_th[n][1]}/9) |" for n, c in curves.items()],
+        *[
+            f"| {st} | {m.stage_p_[st][sys_.index('ka2')]:.1f} | "
+            f"{m.stage_p_[st][sys_.index('ka3')]:.1f} | "
+            f"{(m.stages_[st].get('cycle_fold') or float('nan')):.2f} | "
+            f"{fmt(st_rms[st][0])} ({st_rms[st][1]}/9) |"
+            for st in ("linear", "normal_form", "whole_diagram")
+        ],
+        *[
+            f"| thesis curve {n}_id | — | — | {np.min(c.speed):.2f} | "
+            f"{fmt(rms_th[n][0])} ({rms_th[n][1]}/9) |"
+            for n, c in curves.items()
+        ],
         "",
         "(The linear stage keeps Table A.1's ka2, ka3; thesis values after its stages 2 and 3: "
-        "(750.6, 5007.4) and (751.2, 4769.1).) Heave amplitudes per LCO [mm] (\"—\": the model "
+        '(750.6, 5007.4) and (751.2, 4769.1).) Heave amplitudes per LCO [mm] ("—": the model '
         "has no orbit of that kind there):",
         "",
         "| U [m/s] | label | measured | linear | normal form | whole diagram | thesis "
         "linear_id | thesis nonlinear_id |",
         "|---|---|---|---|---|---|---|---|",
-        *[f"| {r[0]:.1f} | {'stable' if r[1] == 1 else 'unstable'} | {1000 * r[2]:.2f} | "
-          f"{fmt(r[3]['linear'])} | {fmt(r[3]['normal_form'])} | {fmt(r[3]['whole_diagram'])} | "
-          f"{fmt(r[4]['linear'])} | {fmt(r[4]['nonlinear'])} |" for r in rows],
+        *[
+            f"| {r[0]:.1f} | {'stable' if r[1] == 1 else 'unstable'} | {1000 * r[2]:.2f} | "
+            f"{fmt(r[3]['linear'])} | {fmt(r[3]['normal_form'])} | {fmt(r[3]['whole_diagram'])} | "
+            f"{fmt(r[4]['linear'])} | {fmt(r[4]['nonlinear'])} |"
+            for r in rows
+        ],
         "",
         f"Final model: Hopf {final['param']:.2f} m/s, {final['frequency_hz']:.3f} Hz, "
         f"l1 = {final['lyapunov']:.3f} ({final['criticality']}). "
@@ -383,21 +489,31 @@ def bench_real() -> tuple[str, dict]:
         f"Identifiability (stage 2): {m.identifiability_['statement']}",
     ]
     summary = m.summary()
-    return "\n".join(md), {"wall_s": wall, "summary": summary,
-                           "rows": [[r[0], int(r[1]), r[2], r[3], r[4]] for r in rows],
-                           "rms_thesis": rms_th}
+    return "\n".join(md), {
+        "wall_s": wall,
+        "summary": summary,
+        "rows": [[r[0], int(r[1]), r[2], r[3], r[4]] for r in rows],
+        "rms_thesis": rms_th,
+    }
 
 
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--sections", default="linear,nf,wd,real")
+    ap.add_argument("--quick", action="store_true", help="sections linear, nf, wd")
     args = ap.parse_args()
+    if args.quick:
+        args.sections = "linear,nf,wd"
     import bifid  # noqa: F401  (float64)
 
     wanted = args.sections.split(",")
     parts, results = [], {}
-    for name, fn in (("linear", bench_linear), ("nf", bench_nf), ("wd", bench_wd),
-                     ("real", bench_real)):
+    for name, fn in (
+        ("linear", bench_linear),
+        ("nf", bench_nf),
+        ("wd", bench_wd),
+        ("real", bench_real),
+    ):
         if name in wanted:
             log(f"section {name} ...")
             t = time.perf_counter()
@@ -419,17 +535,23 @@ def main() -> None:
         elif name in old and name in old_md:
             merged[name] = old[name]
             all_md.append(old_md[name])
-    header = ("## mechanistic (issue 4: linear PEM, normal form, whole-diagram update)\n\n"
-              "`cd benchmarks && ../.venv/bin/python bench_mechanistic.py "
-              "[--sections linear,nf,wd,real]` (a partial run keeps the other sections; "
-              f"this run: {', '.join(wanted)}).\n")
+    header = (
+        "## mechanistic (linear PEM, normal form, whole-diagram update)\n\n"
+        "`cd benchmarks && ../.venv/bin/python bench_mechanistic.py "
+        "[--sections linear,nf,wd,real]` (a partial run keeps the other sections; "
+        f"this run: {', '.join(wanted)}).\n"
+    )
     write_section("mechanistic", header + "\n\n".join(all_md))
     res_path.write_text(json.dumps(merged, indent=1, default=float))
 
 
 SECTIONS = ("linear", "nf", "wd", "real")
-_TITLES = {"linear": "### Linear stage", "nf": "### Normal form", "wd": "### Whole-diagram",
-           "real": "### Real data"}
+_TITLES = {
+    "linear": "### Linear stage",
+    "nf": "### Normal form",
+    "wd": "### Whole-diagram",
+    "real": "### Real data",
+}
 
 
 def _previous_sections() -> dict[str, str]:

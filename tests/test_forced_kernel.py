@@ -20,8 +20,8 @@ import pytest
 
 from bifid.data import ForcedRecord, forced_dataset, save_dataset
 from bifid.errors import BifidInputError, NotFittedError
-from bifid.identify.forced_kernel import ForcedKernelModel, band_coverage
-from bifid.identify.kernels import GPRegressor, neg_log_marginal_likelihood, sample_eval
+from bifid.identify import ForcedKernelModel, GPRegressor, band_coverage, load
+from bifid.identify.forced_kernel import neg_log_marginal_likelihood, sample_eval
 
 C, K, W0, KAPPA = 0.0015, 0.0005, 1.0, 0.5
 NS = 16  # posterior samples of every band (one compiled shape for the whole file)
@@ -51,8 +51,17 @@ def records(forcing: float, n: int = 16, curve_id: int = 0) -> list[ForcedRecord
         fs = 64 * o / (2 * np.pi)  # 64 samples per period, 2 periods
         t = np.arange(128) / fs
         y = -r * np.cos(o * t + p)  # y = −Re z: its first harmonic lags the force by π − ψ
-        out.append(ForcedRecord(omega=o, forcing=forcing, signals=y[:, None], sample_rate=fs,
-                                force=forcing * np.cos(o * t), amplitude=r, curve=curve_id))
+        out.append(
+            ForcedRecord(
+                omega=o,
+                forcing=forcing,
+                signals=y[:, None],
+                sample_rate=fs,
+                force=forcing * np.cos(o * t),
+                amplitude=r,
+                curve=curve_id,
+            )
+        )
     return out
 
 
@@ -66,8 +75,17 @@ def scurve_records(omega: float, rho: np.ndarray, curve_id: int) -> list[ForcedR
         fs = 64 * omega / (2 * np.pi)
         t = np.arange(128) / fs
         y = -r * np.cos(omega * t + p)
-        out.append(ForcedRecord(omega=omega, forcing=f, signals=y[:, None], sample_rate=fs,
-                                force=f * np.cos(omega * t), amplitude=r, curve=curve_id))
+        out.append(
+            ForcedRecord(
+                omega=omega,
+                forcing=f,
+                signals=y[:, None],
+                sample_rate=fs,
+                force=f * np.cos(omega * t),
+                amplitude=r,
+                curve=curve_id,
+            )
+        )
     return out
 
 
@@ -95,19 +113,21 @@ def test_gp_likelihood_matches_tinygp_and_loo_is_exact():
     th = np.asarray(st.theta)
     ys = y / float(st.y_scale)
     kern = np.exp(2 * th[0]) * tinygp.transforms.Linear(
-        1.0 / (np.asarray(st.x_scale) * np.exp(th[1:3])), tinygp.kernels.ExpSquared())
+        1.0 / (np.asarray(st.x_scale) * np.exp(th[1:3])), tinygp.kernels.ExpSquared()
+    )
     jitter = 1e-10 * np.exp(2 * th[0])
     ref = tinygp.GaussianProcess(kern, x, diag=np.exp(2 * th[-1]) + jitter).log_probability(ys)
-    ours = -neg_log_marginal_likelihood(st.theta, jnp.asarray(x), jnp.asarray(ys), st.x_scale,
-                                        st.x_center)
+    ours = -neg_log_marginal_likelihood(
+        st.theta, jnp.asarray(x), jnp.asarray(ys), st.x_scale, st.x_center
+    )
     assert float(ours) == pytest.approx(float(ref), rel=1e-9, abs=1e-8)
     # closed-form LOO residuals = refits without each point at the same hyperparameters
     brute = []
     for i in range(0, 30, 10):
         keep = np.arange(30) != i
-        gi = GPRegressor(n_restarts=0).fit(x[keep], y[keep], theta=th,
-                                          x_scale=np.asarray(st.x_scale),
-                                          y_scale=float(st.y_scale))
+        gi = GPRegressor(n_restarts=0).fit(
+            x[keep], y[keep], theta=th, x_scale=np.asarray(st.x_scale), y_scale=float(st.y_scale)
+        )
         brute.append(float(gi.predict(x[i : i + 1])[0]) - y[i])
     chol = np.asarray(st.chol)[:30, :30]  # the state is padded to a bucket size
     kinv = np.linalg.inv(chol @ chol.T)
@@ -136,8 +156,9 @@ def test_gp_pathwise_samples_have_the_posterior_moments():
     xt = np.array([[0.5, 0.5], [1.5, 2.9], [4.5, 1.0]])  # the last one extrapolates
     mu, sd = gp.predict(xt, return_std=True)
     s = gp.sample_functions(600, seed=5, n_features=1024)
-    vals = np.asarray(jax.jit(jax.vmap(sample_eval, in_axes=(None, 0, None)))(
-        gp.state_, s, jnp.asarray(xt)))
+    vals = np.asarray(
+        jax.jit(jax.vmap(sample_eval, in_axes=(None, 0, None)))(gp.state_, s, jnp.asarray(xt))
+    )
     np.testing.assert_allclose(vals.mean(0), mu, atol=4 * sd.max() / math.sqrt(600) + 1e-6)
     np.testing.assert_allclose(vals.std(0), sd, rtol=0.15)
     assert sd[2] > 2 * max(sd[0], sd[1])  # wider away from the data
@@ -154,16 +175,16 @@ def test_fit_recovers_forcing_scale_and_reduced_dynamics(model):
     np.testing.assert_allclose(b, W0 + K * rho**2, rtol=0, atol=2e-6)
     assert model.losses_["forcing_rel_rms"] < 1e-4
     assert model.losses_["phase_rms"] < 1e-4
-    assert model.parameters()["linear_frequency"] == pytest.approx(W0, abs=1e-5)
+    assert model.summary()["parameters"]["linear_frequency"] == pytest.approx(W0, abs=1e-5)
 
 
 @pytest.mark.parametrize("forcing", [0.004, 0.012])
 def test_frc_at_untrained_forcing_matches_the_exact_curve(model, forcing):
     br = model.frc(forcing, (0.97, 1.03), n_samples=NS)
     g = KAPPA * forcing
-    peak = br.meta["peak"]
-    assert peak["amplitude"] == pytest.approx(g / C, rel=1e-3)
-    assert peak["omega"] == pytest.approx(W0 + K * (g / C) ** 2, abs=2e-5)
+    (peak,) = br.special("peak")
+    assert peak.data["amplitude"] == pytest.approx(g / C, rel=1e-3)
+    assert peak.param == pytest.approx(W0 + K * (g / C) ** 2, abs=2e-5)
     folds = np.sort([sp.param for sp in br.special("fold")])
     np.testing.assert_allclose(folds, exact_folds(forcing), rtol=1e-5)
     # every point is on the exact curve at its own phase
@@ -193,7 +214,7 @@ def test_fit_from_scurves_with_default_settings():
     assert m.forcing_scale_ == pytest.approx(KAPPA, rel=1e-3)
     br = m.frc(0.009, (0.97, 1.03))
     g = KAPPA * 0.009
-    assert br.meta["peak"]["amplitude"] == pytest.approx(g / C, rel=1e-3)
+    assert br.special("peak")[0].data["amplitude"] == pytest.approx(g / C, rel=1e-3)
     folds = np.sort([sp.param for sp in br.special("fold")])
     np.testing.assert_allclose(folds, exact_folds(0.009), rtol=1e-5)
 
@@ -201,6 +222,7 @@ def test_fit_from_scurves_with_default_settings():
 def test_band_widens_away_from_the_data(model):
     inside = model.frc(0.0085, (0.97, 1.03), n_samples=NS)
     outside = model.frc(0.02, (0.97, 1.05), n_samples=NS)
+
     def width_at_peak(br):  # amplitude width of the band where the FRC peaks
         i = int(np.argmax(br.data["observed_amplitude"]))
         return abs(br.data["band_upper"][i, 1] - br.data["band_lower"][i, 1])
@@ -246,19 +268,22 @@ def test_save_load_roundtrip_and_no_pickle(model, tmp_path):
     d = model.save(tmp_path / "m")
     meta = json.loads((d / "model.json").read_text())
     assert meta["type"] == "forced_kernel"
-    loaded = ForcedKernelModel.load(d)
+    loaded = load(d)
+    assert isinstance(loaded, ForcedKernelModel)
     r = np.linspace(0.5, 3, 5)
-    np.testing.assert_allclose(loaded.reduced_dynamics(r, 1.0), model.reduced_dynamics(r, 1.0),
-                               rtol=1e-12, atol=1e-15)
-    assert loaded.frc(0.01, (0.98, 1.02)).meta["peak"]["amplitude"] == pytest.approx(
-        model.frc(0.01, (0.98, 1.02)).meta["peak"]["amplitude"], rel=1e-10)
+    np.testing.assert_allclose(
+        loaded.reduced_dynamics(r, 1.0), model.reduced_dynamics(r, 1.0), rtol=1e-12, atol=1e-15
+    )
+    assert loaded.frc(0.01, (0.98, 1.02)).special("peak")[0].param == pytest.approx(
+        model.frc(0.01, (0.98, 1.02)).special("peak")[0].param, rel=1e-10
+    )
     with np.load(d / "arrays.npz", allow_pickle=False) as z:
         assert all(z[k].dtype.kind in "biuf" for k in z.files)
 
 
 def test_invariance_to_a_given_forcing_scale(dataset):
     m2 = ForcedKernelModel(forcing_scale=1.0, n_restarts=0, observation=False).fit(dataset)
-    peak = m2.frc(0.01, (0.98, 1.02)).meta["peak"]["amplitude"]
+    peak = m2.frc(0.01, (0.98, 1.02)).special("peak")[0].data["amplitude"]
     assert peak == pytest.approx(KAPPA * 0.01 / C, rel=2e-3)
 
 
@@ -266,16 +291,22 @@ def test_input_errors_and_unfitted():
     with pytest.raises(NotFittedError):
         ForcedKernelModel().frc(0.01)
     with pytest.raises(BifidInputError, match="forcing_scale"):
-        ForcedKernelModel(forcing_scale=-1.0).fit(omega=[1, 1.1, 1.2, 1.3], forcing=[1] * 4,
-                                                  amplitude=[1] * 4, phase=[1] * 4)
+        ForcedKernelModel(forcing_scale=-1.0).fit(
+            omega=[1, 1.1, 1.2, 1.3], forcing=[1] * 4, amplitude=[1] * 4, phase=[1] * 4
+        )
     with pytest.raises(BifidInputError, match="four arrays"):
         ForcedKernelModel().fit(omega=[1.0, 1.1])
     with pytest.raises(BifidInputError, match="at least 4"):
-        ForcedKernelModel().fit(omega=[1, 1.1, 1.2, 1.3], forcing=[1] * 4,
-                                amplitude=[1] * 4, phase=[np.nan, np.nan, 1, 1])
+        ForcedKernelModel().fit(
+            omega=[1, 1.1, 1.2, 1.3],
+            forcing=[1] * 4,
+            amplitude=[1] * 4,
+            phase=[np.nan, np.nan, 1, 1],
+        )
     with pytest.raises(BifidInputError, match="a_basis"):
-        ForcedKernelModel(a_basis=((0, 0),)).fit(omega=[1, 1.1, 1.2, 1.3], forcing=[1] * 4,
-                                                 amplitude=[1] * 4, phase=[1] * 4)
+        ForcedKernelModel(a_basis=((0, 0),)).fit(
+            omega=[1, 1.1, 1.2, 1.3], forcing=[1] * 4, amplitude=[1] * 4, phase=[1] * 4
+        )
 
 
 def test_single_frequency_needs_a_scale_or_linear_frequency():
@@ -285,61 +316,89 @@ def test_single_frequency_needs_a_scale_or_linear_frequency():
     lag = np.pi - np.arctan2(C * rho, -(W0 + K * rho**2 - om) * rho)
     with pytest.raises(BifidInputError, match="several forcing frequencies"):
         ForcedKernelModel(forcing_scale="fit", observation=False).fit(
-            omega=np.full(32, om), forcing=g / KAPPA, amplitude=rho, phase=lag)
+            omega=np.full(32, om), forcing=g / KAPPA, amplitude=rho, phase=lag
+        )
     m = ForcedKernelModel(linear_frequency=W0, n_restarts=0, observation=False).fit(
-        omega=np.full(32, om), forcing=g / KAPPA, amplitude=rho, phase=lag)
+        omega=np.full(32, om), forcing=g / KAPPA, amplitude=rho, phase=lag
+    )
     assert m.forcing_scale_ == pytest.approx(KAPPA, rel=1e-3)
     m1 = ForcedKernelModel(n_restarts=0, observation=False).fit(
-        omega=np.full(32, om), forcing=g / KAPPA, amplitude=rho, phase=lag)
+        omega=np.full(32, om), forcing=g / KAPPA, amplitude=rho, phase=lag
+    )
     assert m1.forcing_scale_ == 1.0 and any("κ" in n for n in m1.notes_)
 
 
 # ------------------------------------------------------------------------------ CLI
 
 
-def _run(argv, capsys):
-    import bifid.cli._fit_forced
-    import bifid.cli._predict  # noqa: F401
-    from bifid.cli._common import app
-
-    capsys.readouterr()
-    try:
-        app(args=argv, prog_name="bifid")
-        code = 0
-    except SystemExit as exc:
-        code = int(exc.code or 0)
-    out, err = capsys.readouterr()
-    return code, out, err
-
-
-def test_cli_fit_and_predict(dataset, tmp_path: Path, capsys):
+def test_cli_fit_and_predict(dataset, tmp_path: Path, bifid_cli):
+    """Check `bifid fit forced` and `bifid predict` (FRC, S-curve, backbone): contract keys
+    and analytic values; a level without calibrated intervals is refused."""
     data = tmp_path / "d.nc"
     save_dataset(dataset, data)
-    code, out, err = _run(["fit", "forced", str(data), "--out", str(tmp_path / "m"),
-                           "--restarts", "0", "--no-observation", "--json"], capsys)
-    assert code == 0, err
-    payload = json.loads(out)
-    assert {"parameters", "losses", "settings"} <= set(payload)
+    r = bifid_cli(
+        "fit",
+        "forced",
+        data,
+        "--out",
+        tmp_path / "m",
+        "--restarts",
+        "0",
+        "--no-observation",
+        "--json",
+    )
+    assert r.code == 0, r.stderr
+    payload = r.json
+    assert {"parameters", "standard_errors", "losses", "settings"} <= set(payload)
     assert payload["parameters"]["forcing_scale"] == pytest.approx(KAPPA, rel=1e-3)
-    code, out, err = _run(["predict", str(tmp_path / "m"), "--frc", "--forcing", "0.012",
-                           "--omega-range", "0.97", "1.03", "--set", f"n_samples={NS}",
-                           "--json"], capsys)
-    assert code == 0, err
-    p = json.loads(out)
-    assert {"points", "folds", "peak", "band"} <= set(p)
+    r = bifid_cli(
+        "predict",
+        tmp_path / "m",
+        "--frc",
+        "--forcing",
+        "0.012",
+        "--omega-range",
+        "0.97",
+        "1.03",
+        "--json",
+    )
+    assert r.code == 0, r.stderr
+    p = r.json
+    assert {"points", "folds", "peak", "complete"} <= set(p)
     assert p["peak"]["amplitude"] == pytest.approx(KAPPA * 0.012 / C, rel=1e-3)
     assert len(p["folds"]) == 2 and all(isinstance(q["stable"], bool) for q in p["points"])
-    code, out, err = _run(["predict", str(tmp_path / "m"), "--scurve", "--omega", "1.004",
-                           "--forcing-range", "0", "0.012", "--json"], capsys)
-    assert code == 0, err
-    p = json.loads(out)
+    r = bifid_cli(
+        "predict",
+        tmp_path / "m",
+        "--scurve",
+        "--omega",
+        "1.004",
+        "--forcing-range",
+        "0",
+        "0.012",
+        "--json",
+    )
+    assert r.code == 0, r.stderr
+    p = r.json
     assert {"points", "folds"} <= set(p) and len(p["folds"]) == 2
-    code, out, err = _run(["predict", str(tmp_path / "m"), "--backbone", "--amplitude-range",
-                           "0.5", "3", "--n-points", "5", "--json"], capsys)
-    assert code == 0, err
-    p = json.loads(out)
+    r = bifid_cli(
+        "predict",
+        tmp_path / "m",
+        "--backbone",
+        "--amplitude-range",
+        "0.5",
+        "3",
+        "--n-points",
+        "5",
+        "--json",
+    )
+    assert r.code == 0, r.stderr
+    p = r.json
     assert len(p["points"]) == 5
     assert p["points"][-1]["omega"] == pytest.approx(W0 + K * 9, abs=1e-5)
-    code, out, err = _run(["predict", str(tmp_path / "m"), "--frc", "--forcing", "0.01",
-                           "--set", "kappa=2", "--json"], capsys)
-    assert code == 2 and out == "" and "n_samples" in err
+    r = bifid_cli(
+        "predict", tmp_path / "m", "--frc", "--forcing", "0.01", "--level", "0.95", "--json"
+    )
+    assert r.code == 2 and r.stdout == "" and "posterior-sample bands" in r.stderr
+    r = bifid_cli("predict", tmp_path / "m", "--forcing", "0.01", "--omega", "1.0")
+    assert r.code == 2 and "does not apply" in r.stderr

@@ -17,7 +17,7 @@ import numpy as np
 import pytest
 
 from bifid.errors import BifidInputError, NotFittedError
-from bifid.identify.hopf_hybrid import HopfHybridModel
+from bifid.identify import HopfHybridModel, load
 
 MU0, A2, OMEGA = 1.0, 1.2, 2.0  # raw-units normal form: fold at MU0 - A2**2 / 4 = 0.64
 FOLD = MU0 - A2**2 / 4
@@ -81,49 +81,55 @@ def test_recovers_hopf_point_and_fold(model):
     assert model.hopf_point()["criticality"] == "subcritical"
     assert model.cycle_fold()["param"] == pytest.approx(FOLD, abs=5e-3)
     assert model.a2_ == pytest.approx(A2, rel=0.02)
-    p = model.parameters()
+    summary = model.summary()
+    p = summary["parameters"]
     assert p["mu0"] == model.mu0_ and p["fold"] == model.cycle_fold()["param"]
-    assert p["ensemble"]["mu0"]["min"] <= p["mu0"] <= p["ensemble"]["mu0"]["max"]
+    assert summary["ensemble"]["mu0"]["min"] <= p["mu0"] <= summary["ensemble"]["mu0"]["max"]
 
 
-@pytest.mark.parametrize(("mu", "stable"), [(0.78, True), (1.08, True), (0.74, False),
-                                            (0.86, False)])
+@pytest.mark.parametrize(
+    ("mu", "stable"), [(0.78, True), (1.08, True), (0.74, False), (0.86, False)]
+)
 def test_amplitudes_and_frequency_at_untrained_parameters(model, mu, stable):
     """Check amplitudes of all three signals (incl. the regressed one) and the frequency."""
-    branch = "stable" if stable else "unstable"
-    pred = model.predict_amplitude([mu], branch)[0]
+    pred = model.predict_amplitude([mu], stable=stable)[0]
     truth = amplitude(mu, stable)
     np.testing.assert_allclose(pred[:2], truth[:2], rtol=0.005)  # the plane: U_12
     np.testing.assert_allclose(pred[2], truth[2], rtol=0.02)  # regressed signal: U_3
-    assert model.predict_frequency([mu], branch)[0] == pytest.approx(OMEGA, rel=2e-3)
+    assert model.predict_frequency([mu], stable=stable)[0] == pytest.approx(OMEGA, rel=2e-3)
+    orbit = model.predict_orbit(mu, stable=stable)
+    np.testing.assert_allclose(orbit.amplitude, pred, rtol=0.01)
+    assert orbit.period == pytest.approx(2 * np.pi / OMEGA, rel=2e-3)
 
 
 def test_no_cycle_where_the_model_has_none(model):
     """Check that asking for a cycle below the fold is an input error naming the fold."""
     with pytest.raises(BifidInputError, match=r"no stable limit cycle.*fold"):
-        model.predict_amplitude([0.5], "stable")
+        model.predict_amplitude([0.5], stable=True)
     with pytest.raises(BifidInputError, match="no unstable limit cycle"):
-        model.predict_amplitude([1.1], "unstable")
+        model.predict_amplitude([1.1], stable=False)
 
 
 def test_time_series_phase_matched(model):
     """Check a predicted time series against the analytic one from the same first sample."""
     t = np.arange(300) / 100.0
     truth = signals(0.9, True, t, phase=0.7)
-    pred = model.predict_time_series(0.9, t, "stable", initial=truth[0])
+    pred = model.predict_time_series(0.9, t, stable=True, initial=truth[0])
     rms = np.sqrt(np.mean((pred - truth) ** 2, axis=0)) / np.sqrt(np.mean(truth**2, axis=0))
     assert np.all(rms < 0.03), rms
 
 
 def test_diagram_matches_continue_contract(model):
-    """Check the diagram's keys, stability along the branch and the band's consistency."""
-    d = model.predict_diagram((0.5, 1.3), n_points=60)
-    assert set(d) >= {"hopf", "cycle_folds", "secondary", "orbits", "band"}
-    assert d["hopf"][0]["param"] == pytest.approx(MU0, abs=5e-3)
-    assert set(d["cycle_folds"][0]) == {"param", "period", "amplitude"}
-    orbits = d["orbits"]
-    assert all(set(o) == {"param", "period", "stable", "floquet_max", "amplitude"}
-               for o in orbits)
+    """Check the predicted Diagram: the keys of `bifid continue`, stability along the branch
+    against the Floquet multipliers, and the ensemble spread around the prediction."""
+    d = model.predict_diagram(range=(0.5, 1.3), n_points=60)
+    assert d.kind == "bifurcation" and d.complete
+    j = d.to_json()
+    assert set(j) >= {"hopf", "cycle_folds", "secondary", "orbits", "complete", "status"}
+    assert j["hopf"][0]["param"] == pytest.approx(MU0, abs=5e-3)
+    assert {"param", "period", "amplitude"} <= set(j["cycle_folds"][0])
+    orbits = j["orbits"]
+    assert all({"param", "period", "stable", "floquet_max", "amplitude"} <= set(o) for o in orbits)
     assert all(0.5 <= o["param"] <= 1.3 for o in orbits)
     # the inner branch (small amplitude) is unstable, the outer one stable; multipliers agree
     for o in orbits:
@@ -131,7 +137,13 @@ def test_diagram_matches_continue_contract(model):
         assert o["period"] == pytest.approx(2 * np.pi / OMEGA, rel=5e-3)
     small = [o for o in orbits if o["amplitude"]["x"] < 0.5 * amplitude(FOLD, True)[0]]
     assert small and not any(o["stable"] for o in small)
-    json.dumps(d)  # JSON-able
+    json.dumps(j)  # JSON-able
+    spread = model.ensemble_spread((0.5, 1.3), n_points=12)
+    assert spread["hopf_param"]["min"] <= j["hopf"][0]["param"] <= spread["hopf_param"]["max"]
+    with pytest.raises(BifidInputError, match="no calibrated intervals"):
+        model.predict_diagram(range=(0.5, 1.3), level=0.9)
+    with pytest.raises(BifidInputError, match="predicts bifurcation"):
+        model.predict_diagram(forcing=0.1)
 
 
 def test_save_load_round_trip(model, tmp_path):
@@ -142,16 +154,19 @@ def test_save_load_round_trip(model, tmp_path):
     assert meta["type"] == "hopf_hybrid"
     with np.load(path / "arrays.npz", allow_pickle=False) as npz:
         assert all(npz[k].dtype.kind in "biuf" for k in npz.files)
-    loaded = HopfHybridModel.load(path)
+    loaded = load(path)
+    assert isinstance(loaded, HopfHybridModel)
     np.testing.assert_allclose(
         loaded.predict_amplitude([0.9, 1.1]), model.predict_amplitude([0.9, 1.1]), rtol=1e-12
     )
     t = np.linspace(0, 3, 50)
     np.testing.assert_allclose(
-        loaded.predict_time_series(0.9, t, "unstable"),
-        model.predict_time_series(0.9, t, "unstable"), rtol=1e-10, atol=1e-12,
+        loaded.predict_time_series(0.9, t, stable=False),
+        model.predict_time_series(0.9, t, stable=False),
+        rtol=1e-10,
+        atol=1e-12,
     )
-    assert loaded.parameters() == model.parameters()
+    assert loaded.summary()["parameters"] == model.summary()["parameters"]
 
 
 def test_load_rejects_other_model_types(tmp_path):
@@ -196,8 +211,15 @@ def test_input_errors(kwargs, data, match):
 
 def test_cross_validation_selects_and_reports():
     """Check CV picks from the grid, stops inside the budget, and LOO errors are small."""
-    m = HopfHybridModel(**{**FAST, "regularization": "cv", "regularization_grid": (1e-6, 1e-2),
-                           "stopping": "cv", "n_ensemble": 1})
+    m = HopfHybridModel(
+        **{
+            **FAST,
+            "regularization": "cv",
+            "regularization_grid": (1e-6, 1e-2),
+            "stopping": "cv",
+            "n_ensemble": 1,
+        }
+    )
     m.fit(records(noise=0.002, seed=1), signal_names=NAMES)
     assert m.regularization_ in (1e-6, 1e-2)
     assert 1 <= m.n_iterations_ <= FAST["n_lbfgs"]
@@ -208,54 +230,77 @@ def test_cross_validation_selects_and_reports():
     report = m.cross_validate(records(noise=0.002, seed=1), signal_names=NAMES)
     folds = report["folds"]
     assert len(folds) == len(STABLE) + len(UNSTABLE)
-    inner = [f for f in folds if f["param"] not in (min(STABLE), max(STABLE), min(UNSTABLE),
-                                                     max(UNSTABLE))]
+    inner = [
+        f
+        for f in folds
+        if f["param"] not in (min(STABLE), max(STABLE), min(UNSTABLE), max(UNSTABLE))
+    ]
     for f in inner:  # interpolation folds: the left-out orbit is predicted within 3 %
         assert max(f["amplitude_error"][k] for k in ("x", "y")) < 0.03, f
         assert f["frequency_error"] < 0.01
 
 
-def test_cli_fit_and_predict(tmp_path, capsys):
+def test_cli_fit_and_predict(tmp_path, bifid_cli):
     """Check `bifid fit hopf --json` and `bifid predict` on a netCDF dataset (contract keys)."""
-    from bifid.cli import main
     from bifid.data import LCORecord, lco_dataset, save_dataset
 
-    recs = [LCORecord(param=mu, signals=s, sample_rate=fs, stable=st)
-            for mu, s, fs, st in records()]
-    ds = lco_dataset(recs, list(NAMES), param_name="mu", param_units="", system="hopf",
-                     settings={}, source="test")
+    recs = [
+        LCORecord(param=mu, signals=s, sample_rate=fs, stable=st) for mu, s, fs, st in records()
+    ]
+    ds = lco_dataset(
+        recs,
+        list(NAMES),
+        param_name="mu",
+        param_units="",
+        system="hopf",
+        settings={},
+        source="test",
+    )
     save_dataset(ds, tmp_path / "d.nc")
-    args = ["fit", "hopf", str(tmp_path / "d.nc"), "--out", str(tmp_path / "m"), "--json",
-            "--quiet", "--harmonics", "6", "--width", "8", "--iterations", "150",
-            "--ensemble", "2", "--regularization", "1e-6", "--stopping", "final",
-            "--omega-harmonics", "2"]
-    with pytest.raises(SystemExit) as exc:
-        main(args)
-    assert exc.value.code in (0, None)
-    out = json.loads(capsys.readouterr().out)
-    assert {"parameters", "losses", "settings"} <= set(out)
+    r = bifid_cli(
+        "fit",
+        "hopf",
+        tmp_path / "d.nc",
+        "--out",
+        tmp_path / "m",
+        "--json",
+        "--quiet",
+        "--harmonics",
+        "6",
+        "--width",
+        "8",
+        "--iterations",
+        "150",
+        "--ensemble",
+        "2",
+        "--regularization",
+        "1e-6",
+        "--stopping",
+        "final",
+        "--omega-harmonics",
+        "2",
+    )
+    assert r.code == 0, r.stderr
+    out = r.json
+    assert {"parameters", "standard_errors", "losses", "settings"} <= set(out)
     assert out["parameters"]["mu0"] == pytest.approx(MU0, abs=0.01)
     assert out["parameters"]["fold"] == pytest.approx(FOLD, abs=0.01)
-    with pytest.raises(SystemExit) as exc:
-        main(["predict", str(tmp_path / "m"), "--param", "mu", "--range", "0.5", "1.3",
-              "--json", "--n-points", "30"])
-    assert exc.value.code in (0, None)
-    pred = json.loads(capsys.readouterr().out)
+    r = bifid_cli(
+        "predict",
+        tmp_path / "m",
+        "--param",
+        "mu",
+        "--range",
+        "0.5",
+        "1.3",
+        "--json",
+        "--n-points",
+        "30",
+    )
+    assert r.code == 0, r.stderr
+    pred = r.json
     assert {"hopf", "cycle_folds", "orbits"} <= set(pred)
     assert pred["hopf"][0]["param"] == pytest.approx(out["parameters"]["mu0"])
     assert set(pred["orbits"][0]["amplitude"]) == set(NAMES)
-    # --set at=U: one period of every signal on both cycles at U (analytic radius, period)
-    with pytest.raises(SystemExit) as exc:
-        main(["predict", str(tmp_path / "m"), "--range", "0.5", "1.3", "--json",
-              "--n-points", "10", "--set", "at=0.9"])
-    assert exc.value.code in (0, None)
-    cycles = json.loads(capsys.readouterr().out)["cycles"]
-    assert [c["branch"] for c in cycles] == ["stable", "unstable"]
-    for c in cycles:
-        assert c["period"] == pytest.approx(2 * np.pi / OMEGA, rel=5e-3)
-        x = np.asarray(c["signals"]["x"])
-        assert np.max(np.abs(x)) == pytest.approx(amplitude(0.9, c["branch"] == "stable")[0],
-                                                  rel=0.01)
-    with pytest.raises(SystemExit) as exc:
-        main(["predict", str(tmp_path / "m"), "--param", "U", "--range", "0.5", "1.3"])
-    assert exc.value.code == 2
+    r = bifid_cli("predict", tmp_path / "m", "--param", "U", "--range", "0.5", "1.3")
+    assert r.code == 2 and "not 'U'" in r.stderr

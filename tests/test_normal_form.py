@@ -6,9 +6,9 @@ import numpy as np
 import pytest
 
 from bifid.errors import BifidInputError
-from bifid.identify.normal_form import (
-    flutter_speed_regression,
+from bifid.identify.mechanistic import (
     hopf_normal_form,
+    hopf_point_regression,
     quadratic_cubic_structure,
 )
 
@@ -20,8 +20,9 @@ def flutter_nf():
 
 def test_hopf_system_coefficients_are_analytic() -> None:
     # z' = (mu - mu0 + i w0) z + a2 z|z|^2 with z = u1 + i u2; <q,q> = 1 gives c1 = 2 a2
-    nf = hopf_normal_form("hopf", "mu", p={"mu0": 0.3, "a2": -0.7, "q5": 0.0, "omega0": 2.0},
-                          guess=0.2)
+    nf = hopf_normal_form(
+        "hopf", "mu", p={"mu0": 0.3, "a2": -0.7, "q5": 0.0, "omega0": 2.0}, guess=0.2
+    )
     assert nf.param_value == pytest.approx(0.3, abs=1e-12)
     assert nf.omega == pytest.approx(2.0, rel=1e-12)
     assert nf.alpha1 == pytest.approx(1.0, rel=1e-12)
@@ -51,7 +52,7 @@ def test_flutter_matches_thesis_eq_4_10(flutter_nf) -> None:
     a1_tau, _ = nf.tau_coefficients()
     # eq. 4.10: dR/dtau = 8.8e-3 mu R + (-4.5e-5 ka3 + 8.4e-7 ka2^2) R^3 (tau = omega t, |q| = 1)
     assert a1_tau == pytest.approx(8.8e-3, rel=0.02)
-    s = quadratic_cubic_structure("flutter", nf)
+    s = quadratic_cubic_structure("flutter", nf, "ka2", "ka3")
     assert s["c3_tau"] == pytest.approx(-4.5e-5, rel=0.02)
     assert s["c22_tau"] == pytest.approx(8.4e-7, rel=0.02)
     # the structure is exact: every other quadratic term vanishes to round-off
@@ -107,18 +108,18 @@ def test_flutter_amplitude_error_shrinks_like_sqrt_mu(flutter_nf) -> None:
     assert fslope > 1.5, (fslope, ferrs)
 
 
-def test_flutter_speed_regression_exact_and_errors() -> None:
+def test_hopf_point_regression_exact_and_errors() -> None:
     U = np.array([14.9, 15.7, 16.4, 17.2])
     amp = np.sqrt(2e-4 * (17.92 - U))
     f = 2.52 + 0.03 * (U - 17.92)
-    r = flutter_speed_regression(U, amp, f)
+    r = hopf_point_regression(U, amp, f)
     assert r["param"] == pytest.approx(17.92, abs=1e-10)
     assert r["frequency"] == pytest.approx(2.52, abs=1e-10)
     assert r["r2"] == pytest.approx(1.0)
     with pytest.raises(BifidInputError):
-        flutter_speed_regression([1.0], [1.0])
+        hopf_point_regression([1.0], [1.0])
     with pytest.raises(BifidInputError):
-        flutter_speed_regression([1.0, 1.0], [1.0, 2.0])
+        hopf_point_regression([1.0, 1.0], [1.0, 2.0])
 
 
 def test_structure_rejects_linear_parameters(flutter_nf) -> None:

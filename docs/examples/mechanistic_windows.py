@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from bifid.data import load_free_decay
-from bifid.identify.linear_pem import LinearPEM
+from bifid.identify import LinearPEM
 from bifid.identify.mechanistic import release_index
 
 RIG = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "flutter_rig"
@@ -32,7 +32,8 @@ for t0 in (0.3, release_index(y) / fs, 1.0, 2.0):
     for dur in (None, 3.0):
         a = round(t0 * fs)
         b = len(y) if dur is None else a + round(dur * fs)
-        m = LinearPEM("flutter", ("Ia", "ca", "ch"), params=start, ratios={"ka": "Ia"},
+        m = LinearPEM("flutter", ("Ia", "ca", "ch"), ("h", "alpha"), params=start,
+                      ratios={"ka": "Ia"},
                       decimate=10).fit(y[a:b], fs)
         print(f"| {t0:.2f}–{b / fs:.2f} | {m.params_['Ia']:.4f} | {m.params_['ca']:.4f} | "
               f"{m.params_['ch']:.3f} | {m.fit_percent_['h']:.1f} | "

@@ -1,4 +1,4 @@
-"""Accuracy of the hybrid Hopf model on the thesis's examples (issue 5 §3; slow, opt-in).
+"""Accuracy of the hybrid Hopf model on the thesis's examples (slow, opt-in).
 
 * Van der Pol (§5.4.1): six stable cycles, mu = 0.1 ... 1.0, 10 s at 0.02 s. Hopf point
   within 0.03 of 0, amplitudes at five untrained mu within 2 %, a time series at an untrained
@@ -14,8 +14,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from bifid.identify._hopf_synthetic import ContinuationTruth, simulated_records
-from bifid.identify.hopf_hybrid import HopfHybridModel
+from bifid.continuation.truth import ContinuationTruth, simulated_records
+from bifid.identify import HopfHybridModel
 
 pytestmark = pytest.mark.slow
 
@@ -74,9 +74,8 @@ def _flutter_errors(truth, noise):
     model = HopfHybridModel(n_ensemble=3).fit(recs, signal_names=SIGNALS)
     amp, freq = [], []
     for values, stable in ((TEST_STABLE, True), (TEST_UNSTABLE, False)):
-        branch = "stable" if stable else "unstable"
-        pa = model.predict_amplitude(values, branch)[:, :2]
-        pf = model.predict_frequency(values, branch)
+        pa = model.predict_amplitude(values, stable=stable)[:, :2]
+        pf = model.predict_frequency(values, stable=stable)
         for k, u in enumerate(values):
             ta = truth.amplitude(u, stable, ("h", "alpha"))
             amp.append(np.abs(pa[k] - ta) / ta)

@@ -33,15 +33,24 @@ from __future__ import annotations
 import functools
 from dataclasses import dataclass
 
+import equinox as eqx
 import jax
 import jax.numpy as jnp
 import numpy as np
 
-from bifid.identify._hopf_map import l2, mlp, mlp_apply, mlp_static, u12
-from bifid.identify._hopf_optim import minimise
-from bifid.identify._hopf_polar import fourier_design
+from bifid.identify.hopf_hybrid._map import l2, mlp, mlp_apply, mlp_static, u12
+from bifid.identify.hopf_hybrid._optim import minimise
+from bifid.identify.hopf_hybrid._polar import fourier_design
 
-__all__ = ["fourier_design"]
+__all__ = [
+    "SpeedConfig",
+    "init_speed_params",
+    "invert_phase",
+    "profile_trainer",
+    "series_trainer",
+    "speed_from_phase",
+    "speed_on_grid_fn",
+]
 
 Array = jnp.ndarray
 
@@ -104,12 +113,6 @@ def speed_from_coefficients(coef: Array, theta: Array, omega_scale, form: str) -
     return omega_scale * (jnp.exp(g) if form == "log" else g)
 
 
-def speed(om, static, rho: Array, theta: Array, mu_t: Array, omega_scale, config: SpeedConfig):
-    r""":math:`\Omega(\rho, \theta, \tilde\mu)` of eq. 5.10 at one point (scalar)."""
-    coef = log_speed_coefficients(om, static, rho, mu_t, config)
-    return speed_from_coefficients(coef, theta, omega_scale, config.form)[0]
-
-
 def integrate_phase(om, static, rho, mu_t, theta0, h, n_steps, omega_scale, config):
     r"""RK4 on :math:`\dot\theta = \Omega(\rho, \theta, \tilde\mu)`; ``theta`` at the samples.
 
@@ -139,15 +142,6 @@ def integrate_phase(om, static, rho, mu_t, theta0, h, n_steps, omega_scale, conf
 
 
 # ---------------------------------------------------------------------- phase inversion
-def model_angles(map_params, map_static, mu_t, rho, centre, n_grid: int) -> tuple[Array, Array]:
-    """Polar angles about ``centre`` of the model cycle at ``n_grid`` normal-form phases."""
-    phi = jnp.linspace(0.0, 2 * jnp.pi, n_grid, endpoint=False)
-    u = rho * jnp.stack([jnp.cos(phi), jnp.sin(phi)], axis=1)
-    pts = jax.vmap(lambda ui: u12(map_params, map_static, ui, mu_t))(u)
-    d = pts - centre[None, :]
-    return phi, jnp.arctan2(d[:, 1], d[:, 0])
-
-
 def invert_phase(phi_grid: np.ndarray, angles: np.ndarray, beta: np.ndarray):
     """Normal-form phases whose image has polar angle ``beta`` (eq. 5.12), by interpolation.
 
@@ -170,7 +164,10 @@ def invert_phase(phi_grid: np.ndarray, angles: np.ndarray, beta: np.ndarray):
 
 
 def speed_from_phase(
-    t: np.ndarray, phi_unwrapped: np.ndarray, omega: float, grid: np.ndarray,
+    t: np.ndarray,
+    phi_unwrapped: np.ndarray,
+    omega: float,
+    grid: np.ndarray,
     n_time_harmonics: int = 40,
 ) -> np.ndarray:
     r"""An orbit's speed profile :math:`\Omega(\phi)` on ``grid`` from its phase trajectory.
@@ -206,23 +203,11 @@ def speed_from_phase(
     return np.interp(grid, phase[order], dphi[order], period=2 * np.pi)
 
 
-def project(values: np.ndarray, grid: np.ndarray, nh: int) -> np.ndarray:
-    """Fourier coefficients ``[a0, a1..an, b1..bn]`` of samples on a uniform periodic grid."""
-    out = np.zeros(2 * nh + 1)
-    out[0] = values.mean()
-    for k in range(1, nh + 1):
-        out[k] = 2 * np.mean(values * np.cos(k * grid))
-        out[nh + k] = 2 * np.mean(values * np.sin(k * grid))
-    return out
-
-
 # --------------------------------------------------------------------------- training
 def init_speed_params(key, config: SpeedConfig, rho=None, mu_t=None, targets=None, weights=None):
     """Initial speed parameters: network with a zero output layer; ``w0`` and the linear part
     by weighted least squares of the per-orbit ``targets`` on ``[1, rho, mu_t]`` (zero when no
     targets are given)."""
-    import equinox as eqx
-
     out = 2 * config.n_harmonics + 1
     net = mlp(key, 2, out, config.width, config.depth, 0.0)
     w0, lin = 0.0, np.zeros((out, 2))
@@ -286,8 +271,7 @@ def series_trainer(config: SpeedConfig, n_steps: int):
     def run(om, map_params, rho, mu_t, theta0, h, z, mask, lam, omega_scale):
         def residuals(theta):
             def one(r, m, th0, hh, zz, mm):
-                ths = integrate_phase(theta, static, r, m, th0, hh, n_steps, omega_scale,
-                                      config)
+                ths = integrate_phase(theta, static, r, m, th0, hh, n_steps, omega_scale, config)
                 u = r * jnp.stack([jnp.cos(ths), jnp.sin(ths)], axis=1)
                 pred = jax.vmap(lambda ui: u12(map_params, map_static, ui, m))(u)
                 return jnp.sum(mm[:, None] * (pred - zz) ** 2) / jnp.maximum(jnp.sum(mm), 1.0)

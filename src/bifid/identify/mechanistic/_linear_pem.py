@@ -42,143 +42,58 @@ which is how the thesis keeps a natural frequency
 
 from __future__ import annotations
 
-import functools
-import json
 import math
 from collections.abc import Mapping, Sequence
-from pathlib import Path
+from dataclasses import dataclass
 from typing import Any
 
-import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.linalg
 import scipy.optimize
 
-from bifid.errors import BifidInputError, ConvergenceError, NotFittedError
+from bifid.errors import BifidInputError, ConvergenceError
+from bifid.identify._base import Estimator
+from bifid.identify._persistence import register_model_type
+from bifid.identify.mechanistic._discrete import (
+    discrete_outputs,
+    jacobian_and_field,
+    n_squarings_for,
+    output_error_kernels,
+    state_matrix,
+)
 from bifid.systems import System, get_system
 
 Array = jnp.ndarray
 
-__all__ = ["LinearPEM", "discrete_outputs", "state_matrix"]
+__all__ = ["LinearPEM"]
 
 
-def state_matrix(system: System, p: Array, x_eq: Array | None = None) -> Array:
-    """Continuous-time state matrix :math:`A = \\partial f/\\partial x` at ``x_eq`` (eq. 4.8).
+@dataclass(frozen=True)
+class _Structure:
+    """Indices and starting values of one identification problem."""
 
-    Parameters
-    ----------
-    system : System
-    p : array of shape (n_params,)
-    x_eq : array of shape (n_states,), optional
-        Equilibrium; zeros by default.
-
-    Returns
-    -------
-    jax array of shape (n_states, n_states)
-    """
-    x = jnp.zeros(system.n_states) if x_eq is None else jnp.asarray(x_eq, dtype=jnp.float64)
-    return _jac_and_field(system.field)[0](x, jnp.asarray(p, dtype=jnp.float64))
+    out_idx: tuple[int, ...]
+    free_idx: tuple[int, ...]
+    ratio_pairs: tuple[tuple[int, int], ...]
+    ratio_base: list[float]
+    log_mask: tuple[bool, ...]
+    z0_idx: tuple[int, ...]
+    p0: np.ndarray
+    x_eq: Array
+    A0: np.ndarray
 
 
-@functools.lru_cache(maxsize=64)
-def _jac_and_field(field: Any) -> tuple[Any, Any]:
-    """Jitted ``(df/dx, f)`` of a field (compiled once per field)."""
-    return jax.jit(jax.jacfwd(field)), jax.jit(field)
-
-
-def expm_taylor(M: Array, n_squarings: int, order: int = 18) -> Array:
-    """Matrix exponential by scaling and squaring with a Taylor polynomial.
-
-    :math:`e^{M} = (T_K(M/2^s))^{2^s}` with :math:`T_K` the degree-``order`` Taylor
-    polynomial (Horner form). With :math:`\\|M/2^s\\|_1 \\le 1/2` the truncation error is below
-    :math:`2^{-19}/19! \\approx 10^{-23}`. A fixed, unrolled graph: it compiles (and
-    differentiates) far faster than ``jax.scipy.linalg.expm``'s branchy Padé.
-    """
-    n = M.shape[0]
-    X = M / (2.0**n_squarings)
-    eye = jnp.eye(n, dtype=M.dtype)
-    E = eye
-    for k in range(order, 0, -1):
-        E = eye + (X @ E) / k
-    for _ in range(n_squarings):
-        E = E @ E
-    return E
-
-
-def n_squarings_for(M: np.ndarray) -> int:
-    """Number of squarings ``s`` so that ``||M / 2^s||_1 <= 1/4`` (margin for parameter changes)."""
-    norm = float(np.linalg.norm(np.asarray(M), 1))
-    return max(0, math.ceil(math.log2(max(norm, 1e-300) / 0.25)))
-
-
-def discrete_outputs(A_d: Array, C: Array, z0: Array, n_samples: int) -> Array:
-    """Outputs :math:`C A_d^k z_0`, ``k = 0 .. n_samples-1`` (eq. 4.7), ``(n_samples, n_out)``."""
-
-    def step(z, _):
-        return A_d @ z, C @ z
-
-    _, ys = jax.lax.scan(step, z0, None, length=n_samples)
-    return ys
-
-
-# ------------------------------------------------------------------------- kernels
-@functools.lru_cache(maxsize=32)
-def _kernels(
-    field: Any,
-    n_states: int,
-    out_idx: tuple[int, ...],
-    free_idx: tuple[int, ...],
-    log_mask: tuple[bool, ...],
-    ratio_pairs: tuple[tuple[int, int], ...],
-    z0_idx: tuple[int, ...],
-    fit_offset: bool,
-    n_sq: int,
-):
-    """Jitted residual/Jacobian of the weighted output error for one model structure."""
-    n_free = len(free_idx)
-    n_z0 = len(z0_idx)
-    n_out = len(out_idx)
-    C = jnp.zeros((n_out, n_states)).at[jnp.arange(n_out), jnp.asarray(out_idx)].set(1.0)
-    free_arr = jnp.asarray(free_idx, dtype=jnp.int32)
-    logm = jnp.asarray(log_mask)
-
-    def unpack(theta, p_base, z_base, ratio_base):
-        phi = theta[:n_free]
-        values = jnp.where(logm, jnp.exp(phi), phi)
-        p = p_base.at[free_arr].set(values) if n_free else p_base
-        for k, (dep, src) in enumerate(ratio_pairs):
-            p = p.at[dep].set(ratio_base[k] * p[src])
-        z0 = z_base
-        if n_z0:
-            z0 = z0.at[jnp.asarray(z0_idx)].set(theta[n_free : n_free + n_z0])
-        off = theta[n_free + n_z0 :] if fit_offset else jnp.zeros(n_out)
-        return p, z0, off
-
-    def predict(theta, p_base, z_base, ratio_base, x_eq, dt, n_samples):
-        p, z0, off = unpack(theta, p_base, z_base, ratio_base)
-        A = jax.jacfwd(field)(x_eq, p)
-        A_d = expm_taylor(A * dt, n_sq)
-        return discrete_outputs(A_d, C, z0, n_samples) + off
-
-    @functools.partial(jax.jit, static_argnums=(6,))
-    def residual(theta, p_base, z_base, ratio_base, x_eq, dt, n_samples, y, w):
-        return ((y - predict(theta, p_base, z_base, ratio_base, x_eq, dt, n_samples)) * w).ravel()
-
-    jac = jax.jit(jax.jacfwd(residual), static_argnums=(6,))
-    pred = jax.jit(predict, static_argnums=(6,))
-    return residual, jac, pred, C
-
-
-class LinearPEM:
+@register_model_type
+class LinearPEM(Estimator):
     """Output-error identification of a linearised system from a free-decay record.
 
     Parameters
     ----------
     system : str or System
-        The physical model (``"flutter"``).
+        The physical model (a registered system or a system file).
     free : sequence of str
-        Physical parameters to identify (e.g. ``("Ia", "ca", "ch")``).
+        Physical parameters to identify (e.g. ``("Ia", "ca", "ch")`` of ``flutter``).
     outputs : sequence of str
         Measured states, in the column order of the data (e.g. ``("h", "alpha")``).
     params : mapping, optional
@@ -215,11 +130,14 @@ class LinearPEM:
         whole periods over a long record); fitting the first cycles first avoids them.
     """
 
+    model_type = "linear_pem"
+    _fitted_attribute = "p_"
+
     def __init__(
         self,
-        system: str | System = "flutter",
-        free: Sequence[str] = ("Ia", "ca", "ch"),
-        outputs: Sequence[str] = ("h", "alpha"),
+        system: str | System,
+        free: Sequence[str],
+        outputs: Sequence[str],
         *,
         params: Mapping[str, float] | None = None,
         ratios: Mapping[str, str] | None = None,
@@ -251,31 +169,6 @@ class LinearPEM:
     # ------------------------------------------------------------------ helpers
     def _system(self) -> System:
         return get_system(self.system) if isinstance(self.system, str) else self.system
-
-    def get_params(self) -> dict[str, Any]:
-        """Hyperparameters (JSON-able)."""
-        return {
-            "system": self.system if isinstance(self.system, str) else self.system.name,
-            "free": list(self.free),
-            "outputs": list(self.outputs),
-            "params": dict(self.params),
-            "ratios": dict(self.ratios),
-            "initial_states": None if self.initial_states is None else list(self.initial_states),
-            "estimate_measured_initial": self.estimate_measured_initial,
-            "fit_offset": self.fit_offset,
-            "log_params": None if self.log_params is None else list(self.log_params),
-            "x_eq": None if self.x_eq is None else list(self.x_eq),
-            "decimate": self.decimate,
-            "max_nfev": self.max_nfev,
-            "reweight": self.reweight,
-            "horizons": list(self.horizons),
-        }
-
-    def _check_fitted(self) -> None:
-        if not hasattr(self, "p_"):
-            raise NotFittedError(
-                "This LinearPEM is not fitted yet; call fit(y, sample_rate) first."
-            )
 
     # ---------------------------------------------------------------------- fit
     def fit(
@@ -313,6 +206,59 @@ class LinearPEM:
             If the optimiser fails or the result is not finite.
         """
         sys_ = self._system()
+        y = self._check_data(y, sample_rate)
+        st = self._structure(sys_)
+        d = self.decimate
+        yd = y[::d]
+        dt = d / float(sample_rate)
+        # starting values: offsets from the settled tail, positions from the first sample
+        off0 = (
+            yd[-max(5, yd.shape[0] // 10) :].mean(axis=0)
+            if self.fit_offset
+            else np.zeros(len(self.outputs))
+        )
+        z_base = self._initial_state(sys_, st, y, off0, sample_rate, x0)
+        theta0 = np.concatenate(
+            [
+                [
+                    math.log(st.p0[i]) if lm else st.p0[i]
+                    for i, lm in zip(st.free_idx, st.log_mask, strict=True)
+                ],
+                z_base[list(st.z0_idx)],
+                off0 if self.fit_offset else np.zeros(0),
+            ]
+        )
+        residual, jac, pred, _ = output_error_kernels(
+            sys_.field,
+            sys_.n_states,
+            st.out_idx,
+            st.free_idx,
+            st.log_mask,
+            st.ratio_pairs,
+            st.z0_idx,
+            self.fit_offset,
+            n_squarings_for(st.A0 * dt),
+        )
+        consts = (
+            jnp.asarray(st.p0),
+            jnp.asarray(z_base),
+            jnp.asarray(np.array(st.ratio_base, dtype=float)),
+            st.x_eq,
+            jnp.asarray(dt),
+        )
+        sol, nfev, w = self._optimise(residual, jac, consts, yd, theta0)
+        J = np.asarray(
+            jac(jnp.asarray(sol.x), *consts, yd.shape[0], jnp.asarray(yd), jnp.asarray(w))
+        )
+        cov = float(sol.fun @ sol.fun) / max(J.shape[0] - J.shape[1], 1) * np.linalg.pinv(J.T @ J)
+        yhat = np.asarray(pred(jnp.asarray(sol.x), *consts, yd.shape[0]))
+        self._store(sys_, st, sol, cov, z_base, yd, yhat, w)
+        self.sample_rate_ = float(sample_rate)
+        self.nfev_ = nfev
+        self._dt = dt
+        return self
+
+    def _check_data(self, y: np.ndarray, sample_rate: float) -> np.ndarray:
         y = np.asarray(y, dtype=np.float64)
         if y.ndim == 1:
             y = y[:, None]
@@ -332,13 +278,17 @@ class LinearPEM:
             raise BifidInputError(f"decimate must be a positive integer, got {self.decimate!r}.")
         if not self.free:
             raise BifidInputError("free must name at least one parameter to identify.")
+        return y
+
+    def _structure(self, sys_: System) -> _Structure:
+        """Indices of the outputs, free and tied parameters and estimated initial states;
+        which free parameters are searched in log space; the equilibrium (checked)."""
         out_idx = tuple(sys_.state_index(s) for s in self.outputs)
         free_idx = tuple(sys_.index(n) for n in self.free)
         if len(set(free_idx)) != len(free_idx):
             raise BifidInputError(f"free has duplicated names: {self.free}.")
         p0 = np.asarray(sys_.param_vector(self.params))
-        ratio_pairs = []
-        ratio_base = []
+        ratio_pairs, ratio_base = [], []
         for dep, src in self.ratios.items():
             i_dep, i_src = sys_.index(dep), sys_.index(src)
             if dep in self.free:
@@ -359,21 +309,17 @@ class LinearPEM:
                 raise BifidInputError(
                     f"{n!r} is searched in log space but starts at {p0[sys_.index(n)]}."
                 )
-        log_mask = tuple(n in log_names for n in self.free)
-
         x_eq = jnp.zeros(sys_.n_states) if self.x_eq is None else jnp.asarray(self.x_eq)
-        f_eq = np.asarray(_jac_and_field(sys_.field)[1](x_eq, jnp.asarray(p0)))
+        f_eq = np.asarray(jacobian_and_field(sys_.field)[1](x_eq, jnp.asarray(p0)))
         if np.max(np.abs(f_eq)) > 1e-8 * max(1.0, float(np.max(np.abs(x_eq)))):
             raise BifidInputError(
                 f"x_eq is not an equilibrium of {sys_.name!r} at these parameters "
                 f"(|f(x_eq)| = {np.max(np.abs(f_eq)):.3g}); pass the equilibrium as x_eq."
             )
-
-        # which initial states to estimate
         A0 = np.asarray(state_matrix(sys_, p0, x_eq))
-        if self.initial_states is None:
-            C0 = np.zeros((n_out, sys_.n_states))
-            C0[np.arange(n_out), out_idx] = 1.0
+        if self.initial_states is None:  # the unmeasured states the outputs observe
+            C0 = np.zeros((len(out_idx), sys_.n_states))
+            C0[np.arange(len(out_idx)), out_idx] = 1.0
             O = np.vstack([C0 @ np.linalg.matrix_power(A0, k) for k in range(sys_.n_states)])
             col = np.linalg.norm(O, axis=0) / max(np.linalg.norm(O), 1e-300)
             unmeasured = [i for i in range(sys_.n_states) if i not in out_idx and col[i] > 1e-10]
@@ -382,47 +328,52 @@ class LinearPEM:
         z0_idx = tuple(
             sorted(set(unmeasured) | (set(out_idx) if self.estimate_measured_initial else set()))
         )
+        return _Structure(
+            out_idx,
+            free_idx,
+            tuple(ratio_pairs),
+            ratio_base,
+            tuple(n in log_names for n in self.free),
+            z0_idx,
+            p0,
+            x_eq,
+            A0,
+        )
 
-        d = self.decimate
-        yd = y[::d]
-        n = yd.shape[0]
-        dt = d / float(sample_rate)
-        # starting values: offsets from the settled tail, positions from the first sample,
-        # velocities of measured positions by a 5-point finite difference at the start
-        tail = yd[-max(5, n // 10) :]
-        off0 = tail.mean(axis=0) if self.fit_offset else np.zeros(n_out)
-        z_base = np.zeros(sys_.n_states)
-        for c, i in enumerate(out_idx):
-            z_base[i] = y[0, c] - off0[c]
+    def _initial_state(
+        self,
+        sys_: System,
+        st: _Structure,
+        y: np.ndarray,
+        off0: np.ndarray,
+        sample_rate: float,
+        x0: Mapping[str, float] | None,
+    ) -> np.ndarray:
+        """Measured positions from the first sample, their velocities (states named
+        ``<name>d``) by a 5-point finite difference, then the given ``x0``."""
+        z = np.zeros(sys_.n_states)
         names = sys_.states
-        for c, i in enumerate(out_idx):
-            vel = names[i] + "d"
-            if vel in names:
-                h = 1.0 / float(sample_rate)
+        for c, i in enumerate(st.out_idx):
+            z[i] = y[0, c] - off0[c]
+            if names[i] + "d" in names:
                 k = min(4, y.shape[0] - 1)
-                z_base[names.index(vel)] = (y[k, c] - y[0, c]) / (k * h)
+                z[names.index(names[i] + "d")] = (y[k, c] - y[0, c]) * float(sample_rate) / k
         for nm, v in (x0 or {}).items():
-            z_base[sys_.state_index(nm)] = float(v)
-        phi0 = np.array(
-            [math.log(p0[i]) if lm else p0[i] for i, lm in zip(free_idx, log_mask, strict=True)]
-        )
-        theta0 = np.concatenate(
-            [phi0, z_base[list(z0_idx)], off0 if self.fit_offset else np.zeros(0)]
-        )
+            z[sys_.state_index(nm)] = float(v)
+        return z
 
-        residual, jac, pred, _ = _kernels(
-            sys_.field, sys_.n_states, out_idx, free_idx, log_mask, tuple(ratio_pairs),
-            z0_idx, self.fit_offset, n_squarings_for(A0 * dt),
-        )
-        consts = (
-            jnp.asarray(p0), jnp.asarray(z_base), jnp.asarray(np.array(ratio_base, dtype=float)),
-            x_eq, jnp.asarray(dt),
-        )
+    def _optimise(
+        self, residual: Any, jac: Any, consts: tuple, yd: np.ndarray, theta0: np.ndarray
+    ) -> tuple[Any, int, np.ndarray]:
+        """Growing-horizon trust-region least squares, then (``reweight``) a pass with the
+        output weights of the residuals; returns the SciPy result, the evaluations, the
+        weights."""
+        n, n_out = yd.shape
         Y = jnp.asarray(yd)
 
         def run(theta_start, w):
             wj = jnp.asarray(w)
-            sol = scipy.optimize.least_squares(
+            return scipy.optimize.least_squares(
                 lambda th: np.asarray(residual(jnp.asarray(th), *consts, n, Y, wj)),
                 theta_start,
                 jac=lambda th: np.asarray(jac(jnp.asarray(th), *consts, n, Y, wj)),
@@ -433,7 +384,6 @@ class LinearPEM:
                 gtol=1e-10,
                 max_nfev=self.max_nfev,
             )
-            return sol
 
         # growing horizon: fit the first part of the record, then more of it, so that the
         # phase of a badly-started model never drifts by whole periods (local minima)
@@ -459,45 +409,50 @@ class LinearPEM:
                 f"Linear PEM did not converge within max_nfev={self.max_nfev}; raise max_nfev "
                 "or start closer (e.g. from modal-test values)."
             )
+        return sol, nfev, w
 
+    def _store(
+        self,
+        sys_: System,
+        st: _Structure,
+        sol: Any,
+        cov: np.ndarray,
+        z_base: np.ndarray,
+        yd: np.ndarray,
+        yhat: np.ndarray,
+        w: np.ndarray,
+    ) -> None:
+        """Fitted attributes from the solution and its Gauss–Newton covariance."""
         theta = sol.x
-        J = np.asarray(jac(jnp.asarray(theta), *consts, n, Y, jnp.asarray(w)))
-        dof = max(J.shape[0] - J.shape[1], 1)
-        s2 = float(sol.fun @ sol.fun) / dof
-        JtJ = J.T @ J
-        cov = s2 * np.linalg.pinv(JtJ)
         se_theta = np.sqrt(np.maximum(np.diag(cov), 0.0))
-        yhat = np.asarray(pred(jnp.asarray(theta), *consts, n))
-
-        p_fit = p0.copy()
+        p_fit = st.p0.copy()
         stderr = {}
-        for k, (i, lm) in enumerate(zip(free_idx, log_mask, strict=True)):
+        for k, (i, lm) in enumerate(zip(st.free_idx, st.log_mask, strict=True)):
             p_fit[i] = math.exp(theta[k]) if lm else theta[k]
             stderr[self.free[k]] = float(p_fit[i] * se_theta[k] if lm else se_theta[k])
-        for (i_dep, i_src), rb in zip(ratio_pairs, ratio_base, strict=True):
+        for (i_dep, i_src), rb in zip(st.ratio_pairs, st.ratio_base, strict=True):
             p_fit[i_dep] = rb * p_fit[i_src]
+        nf, nz = len(st.free_idx), len(st.z0_idx)
         z0 = z_base.copy()
-        nz = len(z0_idx)
-        z0[list(z0_idx)] = theta[len(free_idx) : len(free_idx) + nz]
-        off = theta[len(free_idx) + nz :] if self.fit_offset else np.zeros(n_out)
+        z0[list(st.z0_idx)] = theta[nf : nf + nz]
         dstd = np.sqrt(np.maximum(np.diag(cov), 1e-300))
-        corr = cov / np.outer(dstd, dstd)
-
-        self.n_features_in_ = n_out
-        self.sample_rate_ = float(sample_rate)
+        self.n_features_in_ = len(self.outputs)
         self.p_ = p_fit
         self.params_ = {nm: float(p_fit[sys_.index(nm)]) for nm in self.free}
         self.tied_ = {dep: float(p_fit[sys_.index(dep)]) for dep in self.ratios}
         self.stderr_ = stderr
-        self.correlation_ = corr[: len(free_idx), : len(free_idx)]
+        self.correlation_ = (cov / np.outer(dstd, dstd))[:nf, :nf]
         self.initial_state_ = z0
-        self.estimated_initial_states_ = tuple(sys_.states[i] for i in z0_idx)
-        self.offset_ = np.asarray(off, dtype=float)
-        self.A_ = np.asarray(state_matrix(sys_, p_fit, x_eq))
+        self.estimated_initial_states_ = tuple(sys_.states[i] for i in st.z0_idx)
+        self.offset_ = np.asarray(
+            theta[nf + nz :] if self.fit_offset else np.zeros(len(self.outputs)), dtype=float
+        )
+        self.A_ = np.asarray(state_matrix(sys_, p_fit, st.x_eq))
         self.eigenvalues_ = np.linalg.eigvals(self.A_)
         err = yd - yhat
-        self.rmse_ = {o: float(np.sqrt(np.mean(err[:, c] ** 2)))
-                      for c, o in enumerate(self.outputs)}
+        self.rmse_ = {
+            o: float(np.sqrt(np.mean(err[:, c] ** 2))) for c, o in enumerate(self.outputs)
+        }
         self.fit_percent_ = {
             o: float(
                 100.0 * (1 - np.linalg.norm(err[:, c]) / np.linalg.norm(yd[:, c] - yd[:, c].mean()))
@@ -506,11 +461,8 @@ class LinearPEM:
         }
         self.output_sigma_ = {o: float(1.0 / w[0, c]) for c, o in enumerate(self.outputs)}
         self.cost_ = float(0.5 * sol.fun @ sol.fun)
-        self.nfev_ = nfev
         self.converged_ = bool(sol.status > 0)
-        self.x_eq_ = np.asarray(x_eq)
-        self._dt = dt
-        return self
+        self.x_eq_ = np.asarray(st.x_eq)
 
     # ------------------------------------------------------------------ predict
     def predict(self, n_samples: int, *, with_offset: bool = True) -> np.ndarray:
@@ -526,8 +478,11 @@ class LinearPEM:
         C = np.zeros((len(out_idx), sys_.n_states))
         C[np.arange(len(out_idx)), out_idx] = 1.0
         A_d = scipy.linalg.expm(self.A_ / self.sample_rate_)
-        ys = np.asarray(discrete_outputs(jnp.asarray(A_d), jnp.asarray(C),
-                                         jnp.asarray(self.initial_state_), int(n_samples)))
+        ys = np.asarray(
+            discrete_outputs(
+                jnp.asarray(A_d), jnp.asarray(C), jnp.asarray(self.initial_state_), int(n_samples)
+            )
+        )
         return ys + (self.offset_ if with_offset else 0.0)
 
     def modal_summary(self) -> list[dict[str, float]]:
@@ -537,17 +492,22 @@ class LinearPEM:
         for lam in self.eigenvalues_:
             if lam.imag > 1e-9:
                 wn = abs(lam)
-                out.append({"frequency_hz": float(lam.imag / (2 * math.pi)),
-                            "damping_ratio": float(-lam.real / wn)})
+                out.append(
+                    {
+                        "frequency_hz": float(lam.imag / (2 * math.pi)),
+                        "damping_ratio": float(-lam.real / wn),
+                    }
+                )
         return sorted(out, key=lambda m: m["frequency_hz"])
 
     def summary(self) -> dict[str, Any]:
-        """JSON-able result: parameters, standard errors, initial state, fit quality."""
+        """JSON-able result: ``parameters``, ``standard_errors`` (Gauss–Newton), tied
+        parameters, initial state, offsets, fit quality and the modes."""
         self._check_fitted()
         sys_ = self._system()
         return {
             "parameters": self.params_,
-            "stderr": self.stderr_,
+            "standard_errors": self.stderr_,
             "tied": self.tied_,
             "initial_state": dict(zip(sys_.states, map(float, self.initial_state_), strict=True)),
             "offset": dict(zip(self.outputs, map(float, self.offset_), strict=True)),
@@ -557,18 +517,38 @@ class LinearPEM:
             "nfev": self.nfev_,
         }
 
-    def to_json(self) -> str:
-        """Summary as a JSON string."""
-        return json.dumps(self.summary())
+    _SCALARS = (
+        "params_",
+        "tied_",
+        "stderr_",
+        "estimated_initial_states_",
+        "rmse_",
+        "fit_percent_",
+        "output_sigma_",
+        "cost_",
+        "nfev_",
+        "converged_",
+        "sample_rate_",
+        "n_features_in_",
+        "_dt",
+    )
+    _ARRAYS = ("p_", "initial_state_", "offset_", "A_", "correlation_", "x_eq_")
 
-    def save(self, directory: str | Path) -> None:
-        """Save as a model directory (``model.json`` + ``arrays.npz``) with :mod:`bifid.io`."""
-        self._check_fitted()
-        from bifid.io import save_model
-
-        save_model(
-            directory, "linear_pem", self.summary(),
-            {"p": self.p_, "initial_state": self.initial_state_, "offset": self.offset_,
-             "A": self.A_},
-            {**self.get_params(), "sample_rate": self.sample_rate_},
+    def _state(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+        if not isinstance(self.system, str):
+            raise BifidInputError(
+                "a LinearPEM is saved with its system's name: build it with system='name' "
+                "(a registered system or a system file), not a System object."
+            )
+        return (
+            {k: getattr(self, k) for k in self._SCALARS},
+            {k: np.asarray(getattr(self, k)) for k in self._ARRAYS},
         )
+
+    def _restore(self, state: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
+        for k in self._SCALARS:
+            setattr(self, k, state[k])
+        self.estimated_initial_states_ = tuple(self.estimated_initial_states_)
+        for k in self._ARRAYS:
+            setattr(self, k, np.asarray(arrays[k]))
+        self.eigenvalues_ = np.linalg.eigvals(self.A_)

@@ -7,7 +7,7 @@ r"""The coordinate map :math:`\mathbf U_{12}` and its staged training (thesis §
 
 maps normal-form coordinates to the (normalised) measured plane :math:`(z_1, z_2)`. The loss
 (eq. 5.7, squared, with Parseval weights — evaluated by quadrature, see
-:func:`~._hopf_polar.polar_mismatch` — plus the centroid match of :mod:`._hopf_polar`) is
+:func:`~._polar.polar_mismatch` — plus the centroid match of :mod:`._polar`) is
 
 .. math::
 
@@ -32,10 +32,15 @@ from dataclasses import dataclass
 import equinox as eqx
 import jax
 import jax.numpy as jnp
+import numpy as np
 
-from bifid.identify._hopf_normal_form import existence_violation, lco_radius2
-from bifid.identify._hopf_optim import minimise
-from bifid.identify._hopf_polar import polar_mismatch, polygon_centroid
+from bifid.identify.hopf_hybrid._normal_form import (
+    existence_violation,
+    initial_guess,
+    lco_radius2,
+)
+from bifid.identify.hopf_hybrid._optim import minimise
+from bifid.identify.hopf_hybrid._polar import polar_mismatch, polygon_centroid
 
 Array = jnp.ndarray
 
@@ -120,12 +125,10 @@ def a2_of(alpha: Array, mode: str) -> Array:
 
 def alpha_of(a2: float, mode: str) -> float:
     """Inverse of :func:`a2_of` (for initialisation)."""
-    import math
-
     if mode == "fixed":
         return 0.0
     v = abs(a2)
-    return float(v + math.log(-math.expm1(-v)))  # softplus^{-1}
+    return float(v + np.log(-np.expm1(-v)))  # softplus^{-1}
 
 
 # --------------------------------------------------------------------------- the map
@@ -165,8 +168,9 @@ def orbit_losses(params, static, data, config: MapConfig) -> Array:
         if config.q5 == 0.0:
             return orbit_loss(params, static, mu_t, 1.0, coef, centre, config)
         if not config.unlabelled:
-            return orbit_loss(params, static, mu_t, jnp.where(code < 0, -1.0, 1.0), coef, centre,
-                              config)
+            return orbit_loss(
+                params, static, mu_t, jnp.where(code < 0, -1.0, 1.0), coef, centre, config
+            )
         lp = orbit_loss(params, static, mu_t, 1.0, coef, centre, config)
         lm = orbit_loss(params, static, mu_t, -1.0, coef, centre, config)
         return jnp.where(code > 0, lp, jnp.where(code < 0, lm, jnp.minimum(lp, lm)))
@@ -224,8 +228,13 @@ def trainer(config: MapConfig):
             def stage(p, spec):
                 mask, limit, lam_s, stop = spec
                 p_new, hist, (final, _) = minimise(
-                    make_loss(data, weights, lam_s), p, n_adam=0, n_lbfgs=n,
-                    learning_rate=config.learning_rate, stop_at=stop, mask=mask,
+                    make_loss(data, weights, lam_s),
+                    p,
+                    n_adam=0,
+                    n_lbfgs=n,
+                    learning_rate=config.learning_rate,
+                    stop_at=stop,
+                    mask=mask,
                     lbfgs_limit=limit,
                 )
                 return p_new, (hist, final)
@@ -233,12 +242,21 @@ def trainer(config: MapConfig):
             p2, (hists, finals) = jax.lax.scan(stage, params, specs)
             return p2, hists[1, : config.n_lbfgs], finals[1]
         p1, _, _ = minimise(
-            make_loss(data, weights, 0.0), params, n_adam=0, n_lbfgs=config.n_linear,
-            learning_rate=config.learning_rate, mask=mask_lin,
+            make_loss(data, weights, 0.0),
+            params,
+            n_adam=0,
+            n_lbfgs=config.n_linear,
+            learning_rate=config.learning_rate,
+            mask=mask_lin,
         )
         p2, hist, (final, _) = minimise(
-            make_loss(data, weights, lam), p1, n_adam=config.n_adam, n_lbfgs=config.n_lbfgs,
-            learning_rate=config.learning_rate, stop_at=stop_at, mask=mask_net,
+            make_loss(data, weights, lam),
+            p1,
+            n_adam=config.n_adam,
+            n_lbfgs=config.n_lbfgs,
+            learning_rate=config.learning_rate,
+            stop_at=stop_at,
+            mask=mask_net,
         )
         return p2, hist, final
 
@@ -258,8 +276,6 @@ def loss_evaluator(config: MapConfig):
 
 # --------------------------------------------------------------------- initialisation
 def _sqrtm_spd(S):
-    import numpy as np
-
     w, V = np.linalg.eigh(0.5 * (S + S.T))
     return (V * np.sqrt(np.maximum(w, 1e-12))) @ V.T
 
@@ -267,19 +283,15 @@ def _sqrtm_spd(S):
 def initial_params(prep, train_mask, config: MapConfig, key: Array, criticality: str):
     r"""Initial :math:`T_L, T_s, \tilde\mu_0, a_2` and network from the training orbits.
 
-    :math:`\tilde\mu_0, a_2` from :func:`~._hopf_normal_form.initial_guess`; then, with
+    :math:`\tilde\mu_0, a_2` from :func:`~._normal_form.initial_guess`; then, with
     :math:`\rho_i` the model radii, :math:`T_L[:, :2] = \sqrt{2\,\overline{\Sigma_i/\rho_i^2}}`
     (an ellipse with the orbits' mean covariance; its orientation sign makes the model rotate
     the way the data do, so that :math:`\omega_0 > 0`), and
     :math:`T_L[:, 2]\tilde\mu + T_s` the least-squares line through the centroids.
     """
-    import numpy as np
-
-    from bifid.identify._hopf_normal_form import initial_guess
-
     idx = np.nonzero(train_mask)[0]
     mu_t = prep.mu_t[idx]
-    branch = prep.branch[idx]
+    branch = prep.root[idx]
     mu0, a2, kappa = initial_guess(mu_t, prep.size[idx], branch, criticality, config.q5)
     rho2 = []
     for mt, b, size in zip(mu_t, branch, prep.size[idx], strict=True):

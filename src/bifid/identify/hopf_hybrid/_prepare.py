@@ -16,13 +16,15 @@ import jax.numpy as jnp
 import numpy as np
 
 from bifid.errors import BifidInputError, ConvergenceWarning
-from bifid.identify._hopf_data import LCOData
-from bifid.identify._hopf_polar import (
-    polar_coefficients_np,
+from bifid.identify._records import LCOData
+from bifid.identify.hopf_hybrid._normal_form import root_of
+from bifid.identify.hopf_hybrid._polar import (
+    polar_coefficients,
     polygon_centroid_np,
     unwrapped_angle,
-    whole_periods,
+    whole_turns,
 )
+from bifid.signal import evaluate_series, fourier_fit
 
 
 @dataclass
@@ -34,7 +36,7 @@ class Prepared:
     z_scale: np.ndarray  # (m,)
     plane: tuple[int, int]
     mu_t: np.ndarray  # (n,)
-    branch: np.ndarray  # (n,)
+    root: np.ndarray  # (n,) root codes of the orbits (OUTER, INNER, EITHER)
     coef: np.ndarray  # (n, 2nh+1)
     centre: np.ndarray  # (n, 2)
     size: np.ndarray  # (n,) mean polar radius a0
@@ -54,7 +56,7 @@ class Prepared:
         """The per-orbit arrays of the map stage (JAX)."""
         return {
             "mu_t": jnp.asarray(self.mu_t, dtype=jnp.float64),
-            "branch": jnp.asarray(self.branch, dtype=jnp.float64),
+            "branch": jnp.asarray(self.root, dtype=jnp.float64),
             "coef": jnp.asarray(self.coef, dtype=jnp.float64),
             "centre": jnp.asarray(self.centre, dtype=jnp.float64),
         }
@@ -82,7 +84,7 @@ def prepare(
     m = len(data.signal_names)
     if not (0 <= i1 < m and 0 <= i2 < m and i1 != i2):
         raise BifidInputError(f"plane must be two different signal indices < {m}, got {plane}.")
-    params = data.params
+    params = data.param
     if len(np.unique(params)) < 2:
         raise BifidInputError(
             "The hybrid Hopf model needs records at two or more parameter values; got "
@@ -103,13 +105,13 @@ def prepare(
     for i, sig in enumerate(data.signals):
         zn = sig / z_scale[None, :]
         pts = zn[:, [i1, i2]] @ white
-        n_whole, turns, direction = whole_periods(pts, pts.mean(axis=0))
+        n_whole, turns, direction = whole_turns(pts, pts.mean(axis=0))
         if turns < 1:
             raise BifidInputError(
                 f"Record {i} (param {params[i]:g}) holds less than one period in the plane "
                 f"({data.signal_names[i1]}, {data.signal_names[i2]}); record longer time series."
             )
-        t_all = np.arange(len(zn)) / data.sample_rates[i]
+        t_all = np.arange(len(zn)) / data.sample_rate[i]
         pts = pts[:n_whole]
         c = polygon_centroid_np(pts)
         # frequency: time of `turns` whole revolutions about the centroid (interpolated)
@@ -118,8 +120,8 @@ def prepare(
         k = int(np.searchsorted(travel, turns * 2 * np.pi))
         k = min(max(k, 1), len(travel) - 1)
         frac = (turns * 2 * np.pi - travel[k - 1]) / max(travel[k] - travel[k - 1], 1e-300)
-        slope = turns * 2 * np.pi / ((k - 1 + frac) / data.sample_rates[i])
-        coef = polar_coefficients_np(pts, c, n_harmonics)
+        slope = turns * 2 * np.pi / ((k - 1 + frac) / data.sample_rate[i])
+        coef = polar_coefficients(pts, c, n_harmonics)
         d = pts - c[None, :]
         coefs.append(coef)
         centres.append(c)
@@ -145,7 +147,7 @@ def prepare(
         z_scale=np.asarray(z_scale, dtype=float),
         plane=(i1, i2),
         mu_t=(params - mu_c) / mu_s,
-        branch=data.branch.copy(),
+        root=root_of(data.stable),
         coef=np.asarray(coefs),
         centre=np.asarray(centres),
         size=np.asarray(sizes),
@@ -200,7 +202,7 @@ def choose_harmonics(
     best = 4
     for sig in data.signals:
         pts = (sig[:, [i1, i2]] / z_scale[[i1, i2]]) @ white
-        n_whole, turns, _ = whole_periods(pts, pts.mean(axis=0))
+        n_whole, turns, _ = whole_turns(pts, pts.mean(axis=0))
         if turns < 1:
             continue
         pts = pts[:n_whole]
@@ -208,10 +210,26 @@ def choose_harmonics(
         if nmax <= 4:
             continue
         c = polygon_centroid_np(pts)
-        coef = polar_coefficients_np(pts, c, nmax)
+        coef = polar_coefficients(pts, c, nmax)
         amp = np.sqrt(0.5 * (coef[1 : nmax + 1] ** 2 + coef[nmax + 1 :] ** 2))  # per harmonic
         floor = float(np.median(amp[-max(2, nmax // 4) :]))  # noise level per harmonic
         above = np.nonzero(amp > max(tol * coef[0], 4.0 * floor))[0]
         n = int(above[-1]) + 1 if len(above) else 4
         best = max(best, n)
     return int(best)
+
+
+def measured_amplitude(signals: np.ndarray, omega: float, sample_rate: float) -> np.ndarray:
+    """Noise-robust ``max_t |z_k|`` of a record: the maximum of its 20-harmonic Fourier
+    series at the record's frequency (offset kept: amplitudes about the signals' zero, as the
+    model predicts them)."""
+    theta = np.linspace(0, 2 * np.pi, 2048, endpoint=False)
+    nh = int(max(1, min(20, (len(signals) - 1) // 8)))
+    return np.array(
+        [
+            np.max(
+                np.abs(evaluate_series(fourier_fit(signals[:, k], omega, sample_rate, nh), theta))
+            )
+            for k in range(signals.shape[1])
+        ]
+    )

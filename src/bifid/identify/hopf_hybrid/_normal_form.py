@@ -36,10 +36,17 @@ import numpy as np
 
 Array = jnp.ndarray
 
-# branch codes of a measured orbit
-STABLE = 1  # outer root ("+")
-UNSTABLE = -1  # inner root ("-")
-UNKNOWN = 0
+# which root of g(rho) a measured orbit lies on (from its stability label 1 / 0 / -1)
+OUTER = 1  # "+" root: the stable branch of a subcritical model with quintic term
+INNER = -1  # "-" root: the unstable branch
+EITHER = 0  # stability unknown: the root that fits better
+
+
+def root_of(stable: np.ndarray) -> np.ndarray:
+    """Root codes of orbits from their stability labels (1 stable, 0 unstable, -1 unknown)."""
+    s = np.asarray(stable)
+    return np.where(s == 1, OUTER, np.where(s == 0, INNER, EITHER)).astype(int)
+
 
 _DISC_FLOOR = 1e-8  # keeps the square root differentiable at the fold
 RHO2_FLOOR = 1e-4  # smallest orbit radius^2 used while training (orbit must exist)
@@ -176,7 +183,7 @@ def initial_guess(
         lo = float(np.min(mu_t))
         if fold > lo - 0.05 * span:
             a2 = float(2.0 * np.sqrt(max(mu0 - lo + 0.05 * span, 1e-6)))
-        unstable = branch == UNSTABLE
+        unstable = branch == INNER
         if np.any(unstable) and mu0 < float(np.max(mu_t[unstable])) + 0.02 * span:
             mu0 = float(np.max(mu_t[unstable])) + 0.02 * span
     return float(mu0), float(a2), float(np.sqrt(kappa2))

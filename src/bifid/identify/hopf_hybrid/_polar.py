@@ -21,6 +21,8 @@ from __future__ import annotations
 import jax.numpy as jnp
 import numpy as np
 
+from bifid.signal import fourier_project
+
 Array = jnp.ndarray
 
 
@@ -68,8 +70,18 @@ def polygon_centroid(pts: Array) -> Array:
     return jnp.sum((pts + nxt) * cross[:, None], axis=0) / (6.0 * area)
 
 
-def polar_coefficients(pts: Array, centre: Array, n_harmonics: int, ridge: float = 1e-10) -> Array:
-    r"""Least-squares Fourier coefficients :math:`\Phi(R)` of :math:`R(\theta)` about ``centre``.
+def polygon_centroid_np(pts: np.ndarray) -> np.ndarray:
+    """:func:`polygon_centroid` in NumPy (data preparation: no per-shape compilation)."""
+    pts = np.asarray(pts, dtype=float)
+    nxt = np.roll(pts, -1, axis=0)
+    cross = pts[:, 0] * nxt[:, 1] - nxt[:, 0] * pts[:, 1]
+    area = 0.5 * np.sum(cross)
+    return np.sum((pts + nxt) * cross[:, None], axis=0) / (6.0 * area)
+
+
+def polar_coefficients(pts: np.ndarray, centre: np.ndarray, n_harmonics: int) -> np.ndarray:
+    r"""Least-squares Fourier coefficients :math:`\Phi(R)` of :math:`R(\theta)` about ``centre``
+    (the pseudo-inverse variant of eq. 5.6, :func:`bifid.signal.fourier_project`).
 
     Parameters
     ----------
@@ -80,41 +92,11 @@ def polar_coefficients(pts: Array, centre: Array, n_harmonics: int, ridge: float
 
     Returns
     -------
-    array of shape (2 * n_harmonics + 1,)
+    ndarray of shape (2 * n_harmonics + 1,)
         ``[a0, a1..an, b1..bn]``.
     """
-    d = pts - centre[None, :]
-    theta = jnp.arctan2(d[:, 1], d[:, 0])
-    R = jnp.sqrt(jnp.sum(d**2, axis=1))
-    B = fourier_design(theta, n_harmonics)
-    G = B.T @ B / B.shape[0]
-    rhs = B.T @ R / B.shape[0]
-    return jnp.linalg.solve(G + ridge * jnp.eye(G.shape[0]), rhs)
-
-
-def polygon_centroid_np(pts: np.ndarray) -> np.ndarray:
-    """:func:`polygon_centroid` in NumPy (data preparation: no per-shape compilation)."""
-    pts = np.asarray(pts, dtype=float)
-    nxt = np.roll(pts, -1, axis=0)
-    cross = pts[:, 0] * nxt[:, 1] - nxt[:, 0] * pts[:, 1]
-    area = 0.5 * np.sum(cross)
-    return np.sum((pts + nxt) * cross[:, None], axis=0) / (6.0 * area)
-
-
-def polar_coefficients_np(
-    pts: np.ndarray, centre: np.ndarray, n_harmonics: int, ridge: float = 1e-10
-) -> np.ndarray:
-    """:func:`polar_coefficients` in NumPy (data preparation: records of any length are
-    processed without compiling a JAX program per length)."""
     d = np.asarray(pts, dtype=float) - np.asarray(centre, dtype=float)[None, :]
-    theta = np.arctan2(d[:, 1], d[:, 0])
-    R = np.sqrt(np.sum(d**2, axis=1))
-    k = np.arange(1, n_harmonics + 1, dtype=float)
-    kt = theta[:, None] * k[None, :]
-    B = np.concatenate([np.ones((len(theta), 1)), np.cos(kt), np.sin(kt)], axis=1)
-    G = B.T @ B / B.shape[0]
-    rhs = B.T @ R / B.shape[0]
-    return np.linalg.solve(G + ridge * np.eye(G.shape[0]), rhs)
+    return fourier_project(np.hypot(d[:, 0], d[:, 1]), np.arctan2(d[:, 1], d[:, 0]), n_harmonics)
 
 
 def polar_mismatch(pts: Array, centre: Array, coef: Array, n_harmonics: int) -> Array:
@@ -157,7 +139,7 @@ def unwrapped_angle(pts: np.ndarray, centre: np.ndarray) -> np.ndarray:
     return np.unwrap(np.arctan2(d[:, 1], d[:, 0]))
 
 
-def whole_periods(pts: np.ndarray, centre: np.ndarray) -> tuple[int, int, float]:
+def whole_turns(pts: np.ndarray, centre: np.ndarray) -> tuple[int, int, float]:
     """Number of samples spanning whole turns about ``centre``, the turns and the direction.
 
     Returns

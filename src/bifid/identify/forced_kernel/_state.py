@@ -1,0 +1,62 @@
+"""The fitted kernel model as data: the three Gaussian processes, the forcing scale and the
+trained ranges, with the posterior samples and eigenvalues predictions need."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import jax.numpy as jnp
+import numpy as np
+
+from bifid.identify.forced_kernel._gp import GPRegressor
+from bifid.identify.forced_kernel._reduced import ReducedModel, ReducedSamples, eigs_mean_g
+
+__all__ = ["ReducedFit"]
+
+
+@dataclass
+class ReducedFit:
+    """The learned reduced dynamics (thesis eqs. 6.10–6.20).
+
+    Attributes
+    ----------
+    gp_a, gp_b : GPRegressor
+        ``a(ρ, Ω)`` and ``b(ρ, Ω) − omega_c``.
+    gp_phi : GPRegressor or None
+        The observation ``y = φ(z)`` (None without time series).
+    forcing_scale : float
+        ``κ`` in ``Γ = κF``.
+    omega_c : float
+        Offset of ``b``.
+    rho_range, omega_range, forcing_range : (float, float)
+        Trained amplitudes, frequencies and forcings.
+    """
+
+    gp_a: GPRegressor
+    gp_b: GPRegressor
+    gp_phi: GPRegressor | None
+    forcing_scale: float
+    omega_c: float
+    rho_range: tuple[float, float]
+    omega_range: tuple[float, float]
+    forcing_range: tuple[float, float]
+
+    @property
+    def model(self) -> ReducedModel:
+        """The posterior means as a JAX pytree."""
+        return ReducedModel(
+            a=self.gp_a.state_, b=self.gp_b.state_, omega_c=jnp.asarray(self.omega_c)
+        )
+
+    def samples(self, n_samples: int, seed: int, n_features: int = 256) -> ReducedSamples:
+        """Posterior function samples of ``a`` and ``b`` (pathwise conditioning;
+        ``n_features`` random Fourier features approximate the prior part)."""
+        return ReducedSamples(
+            a=self.gp_a.sample_functions(n_samples, seed=seed, n_features=n_features),
+            b=self.gp_b.sample_functions(n_samples, seed=seed + 1, n_features=n_features),
+        )
+
+    def stable(self, rho, psi, omega, gamma) -> tuple[np.ndarray, np.ndarray]:
+        """Eigenvalues of the Jacobian of eq. 6.10 at fixed points and their stability."""
+        eig = np.asarray(eigs_mean_g(self.model, rho, psi, omega, gamma))
+        return eig, np.all(eig.real < 0, axis=1)
