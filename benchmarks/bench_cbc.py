@@ -1,345 +1,422 @@
-"""CBC benchmark: virtual-rig speed and a full PP-CBC diagram of the flutter model.
+"""CBC benchmark: PP-CBC diagrams of the flutter model and its variants, through the CLI.
 
-Run from the repository root or the benchmarks directory::
+Run from the repository root::
 
-    .venv/bin/python benchmarks/bench_cbc.py            # writes BENCHMARKS.md section "cbc"
-    .venv/bin/python benchmarks/bench_cbc.py --quick    # shorter, prints only
+    .venv/bin/python benchmarks/bench_cbc.py                  # writes BENCHMARKS.md "cbc"
+    .venv/bin/python benchmarks/bench_cbc.py --only diagram   # one part, printed only
 
-Measures, in one run:
+Measures, as a user would (``bifid cbc ...`` in a fresh process, compilation and start-up
+included; CPU time of the process beside the wall time):
 
-1. simulated seconds per wall-clock second of the flutter rig at 5 kHz with the PP-CBC
-   controller (polar target, n_h = 10) in the loop, median of repeats after JIT (the
-   compile time is reported separately), against a plain ``scipy.integrate.solve_ivp``
-   loop of the same rig (same field with M⁻¹ precomputed in numpy, same sampled
-   controller, zero-order hold between samples);
-2. the wall time and accuracy of the demo's PP-CBC campaign (``lco_campaign``: scan at
-   17.5 m/s, then continuation round the cycle fold; 14 LCOs with 1 % noise);
-3. the wall time of the issue's PP-CBC diagram by amplitude scans: both LCOs at U = 15,
-   15.5, ..., 17 m/s and the unstable one at 17.5 m/s (11 LCOs, switch-off stability
-   test), noise-free and with measurement noise of 1 % of the smallest heave amplitude,
-   with the error of every LCO against the uncontrolled orbit Newton-corrected at the
-   same U.
+1. **diagram** -- ``bifid cbc flutter --protocol ppcbc --values 15,15.5,...,17.5,17.9``:
+   both LCOs at every speed (14), noise-free and with measurement noise of 1 % of the
+   smallest LCO's amplitude (``--noise-fraction 0.01``), and the same campaign by the
+   library (:func:`bifid.cbc.ppcbc_campaign`) in this process: first call (numba cache and
+   JIT) and a second one;
+2. **continuation** -- ``--continuation N --range 17.5 LOW`` from the LCOs at 17.5 m/s round
+   the cycle fold, for the default model and three variants of the pitch stiffness;
+3. **variants** -- ``--set ka2=… --set ka3=…`` (0.5-1.5 × the defaults, one with period
+   doubling of the large LCO inside the range) × 6 speeds in each bistable range.
+
+Every measured LCO is compared with the model's orbit Newton-corrected at the measured
+speed (Fourier collocation from the nearest orbit of the continued branch,
+:func:`bifid.cbc._truth.lco_truth`); amplitudes are ``max |x - x̄|``.
 """
 
 from __future__ import annotations
 
 import argparse
-import statistics
+import json
+import os
+import resource
+import subprocess
 import sys
+import tempfile
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 
-import bifid  # noqa: F401
 from _report import write_section
-from bifid.cbc import PDController, PolarTarget, defaults_for
-from bifid.systems import flutter_matrices, get_system
 
-U_VALUES = (15.0, 15.5, 16.0, 16.5, 17.0, 17.5)
-KP, KD = -150.0, -20.0  # the flutter defaults: PP-CBC in the (h, alpha) plane
-
-
-def _polar_target(rng: np.random.Generator) -> PolarTarget:
-    c = np.zeros(21)
-    c[0] = 0.013
-    c[1:] = 1e-4 * rng.normal(size=20)
-    return PolarTarget(c, scale=(1.0, 3.3), origin=(0.001, -0.01))
+ROOT = Path(__file__).resolve().parents[1]
+BIFID = str(ROOT / ".venv" / "bin" / "bifid")
+SPEEDS = (15.0, 15.5, 16.0, 16.5, 17.0, 17.5, 17.9)
+KA2, KA3 = 751.6, 5006.7
+# (ka2, ka3) factors: bistable ranges from `bifid continue flutter --set ... --param U`
+VARIANTS = ((1.0, 0.5), (1.25, 0.75), (0.75, 0.5), (0.75, 0.75), (1.0, 1.25), (1.25, 1.0))
+PD_VARIANT = (1.0, 0.5)  # the large LCO loses stability by period doubling at U ≈ 15.1
 
 
-def rig_speed(seconds: float, repeats: int, engine: str = "numba",
-              noise: dict | None = None) -> dict:
-    s = get_system("flutter")
-    rig = defaults_for("flutter").rig(s, {"U": 16.0}, x0=[0.012, 0, 0.04, 0, 0, 0],
-                                      engine=engine, noise=noise)
-    assert rig.engine == engine
-    rig.set_controller(PDController(KP, KD, "h", "alpha"), _polar_target(np.random.default_rng(0)))
+def cli(args: list[str]) -> tuple[dict, float, float, int]:
+    """``bifid cbc ARGS --json``: (JSON, wall s, CPU s of the process, exit code)."""
+    before = resource.getrusage(resource.RUSAGE_CHILDREN)
     t0 = time.perf_counter()
-    rig.run(1.0)  # compiles (numba: loads its on-disk cache) the big block
-    rig.run(0.05)  # and the small one
-    compile_s = time.perf_counter() - t0
-    times = []
-    for _ in range(repeats):
-        t0 = time.perf_counter()
-        rig.run(seconds)
-        times.append(time.perf_counter() - t0)
-    med = statistics.median(times)
-    return {"compile_s": compile_s, "wall_s": med, "sim_s": seconds,
-            "realtime": seconds / med, "all": times}
-
-
-def scipy_baseline(seconds: float) -> dict:
-    """The same sampled rig as a plain Python loop over solve_ivp (one call per sample)."""
-    from scipy.integrate import solve_ivp
-
-    s = get_system("flutter")
-    p = np.asarray(s.param_vector(U=16.0))
-    M, D, K = (np.asarray(a) for a in flutter_matrices(p))
-    Mi = np.linalg.inv(M)
-    A = np.zeros((6, 6))
-    pos, vel = [0, 2, 4], [1, 3, 5]
-    A[pos, vel] = 1.0
-    A[np.ix_(vel, pos)] = -Mi @ K
-    A[np.ix_(vel, vel)] = -Mi @ D
-    nl = np.zeros(6)
-    nl[vel] = -Mi[:, 1]
-    ka2, ka3 = p[10], p[11]
-    tgt = _polar_target(np.random.default_rng(0))
-    c = tgt.coefficients
-    k = np.arange(1, 11)
-    fs = 5000.0
-    dt = 1.0 / fs
-    (s1, s2), (o1, o2) = tgt.scale, tgt.origin  # a diagonal transform here
-    x = np.array([0.012, 0, 0.04, 0, 0, 0], dtype=float)
-
-    def f(t, z, u):
-        a = z[2]
-        dz = A @ z + nl * (ka2 * a * a + ka3 * a**3)
-        dz[1] += u
-        return dz
-
-    n = int(seconds * fs)
-    t0 = time.perf_counter()
-    for _ in range(n):
-        h, al = x[0], x[2]  # the sampled measurements
-        xi1, xi2 = (h - o1) / s1, (al - o2) / s2
-        rho = np.hypot(xi1, xi2)
-        cph, sph = (xi1 / rho, xi2 / rho) if rho > 0 else (1.0, 0.0)
-        phi = np.arctan2(sph, cph)
-        r = c[0] + c[1:11] @ np.cos(k * phi) + c[11:] @ np.sin(k * phi)
-        u = KP * (o1 + s1 * r * cph - h) + KD * (o2 + s2 * r * sph - al)
-        x = solve_ivp(f, (0.0, dt), x, args=(u,), rtol=1e-9, atol=1e-12).y[:, -1]
+    r = subprocess.run(
+        [BIFID, "cbc", *args, "--json", "--quiet"], capture_output=True, text=True, cwd=ROOT
+    )
     wall = time.perf_counter() - t0
-    return {"wall_s": wall, "sim_s": seconds, "realtime": seconds / wall}
+    after = resource.getrusage(resource.RUSAGE_CHILDREN)
+    cpu = (after.ru_utime - before.ru_utime) + (after.ru_stime - before.ru_stime)
+    out = (
+        json.loads(r.stdout)
+        if r.stdout.strip().startswith("{")
+        else {"points": [], "failures": [{"reason": r.stderr.strip()[-300:]}], "complete": False}
+    )
+    return out, wall, cpu, r.returncode
 
 
-def diagram(noise_rel: float | None) -> dict:
-    """Both LCOs at each U by the PP-CBC amplitude scan; errors against Newton truth."""
-    import warnings
-
-    from bifid.cbc._ppcbc import ppcbc_sweep
-    from bifid.cbc._truth import centred_amplitudes, correct_orbit, orbit_from_samples
-
-    s = get_system("flutter")
-    noise = None
-    if noise_rel:
-        # 1 % of the smallest heave amplitude of the diagram (unstable LCO at 17.5 m/s),
-        # and the same fraction of its pitch amplitude
-        noise = {"h": noise_rel * 0.00743, "alpha": noise_rel * 0.02157}
-    d = defaults_for("flutter")
-    rig = d.rig(s, {"U": U_VALUES[0]}, noise=noise, seed=11, record_states=True)
-    opts = d.ppcbc_options(measure_periods=8.0 if noise else 4.0)
-    grid = np.linspace(0.004, 0.032, 15)
-    t0 = time.perf_counter()
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        pts, fails = ppcbc_sweep(rig, "U", U_VALUES[:-1], grid, opts, omega_guess=15.0,
-                                 max_points=2)
-        # 17.5 m/s: the unstable LCO (issue 3 §5) on a grid up to 12 mm
-        more, fails2 = ppcbc_sweep(rig, "U", U_VALUES[-1:], np.linspace(0.004, 0.012, 5), opts,
-                                   omega_guess=pts[-1].frequency if pts else 15.0)
-    pts, fails = pts + more, fails + fails2
-    wall = time.perf_counter() - t0
-    rows = []
-    for pt in pts:
-        m = pt.measurement
-        V = orbit_from_samples(m.extra["states"], pt.frequency, m.sample_rate)
-        Vc, _T = correct_orbit(s, "U", pt.param, V, 2 * np.pi / pt.frequency)
-        a = centred_amplitudes(Vc)
-        rows.append({
-            "U": pt.param, "stable": pt.stable,
-            "h": pt.amplitude["h"], "h_true": a[0], "err_h": pt.amplitude["h"] / a[0] - 1,
-            "alpha": pt.amplitude["alpha"], "alpha_true": a[2],
-            "err_alpha": pt.amplitude["alpha"] / a[2] - 1,
-            "inv": pt.invasiveness, "inv_per": pt.invasiveness_periodic,
-            "growth": pt.growth, "evals": pt.iterations,
-        })
-    return {"wall_s": wall, "sim_s": rig.time, "rows": rows, "failures": fails,
-            "warnings": [str(w.message) for w in caught]}
-
-
-def campaign(noise_fraction: float) -> dict:
-    """A continuation campaign: scan at U = 17.5 m/s, then continuation round the cycle fold."""
-    import warnings
-
-    from bifid.cbc import lco_campaign
-    from bifid.cbc._truth import centred_amplitudes, correct_orbit, orbit_from_samples
+def compare(points: list[dict], overrides: dict[str, float], lo: float, hi: float) -> dict:
+    """Add ``truth_amplitude``, ``relative_error``, ``truth_stable`` to each point; return
+    the continued branch (``param``, ``amplitude``, ``stable``)."""
+    from bifid.cbc._truth import lco_truth
+    from bifid.systems import get_system
 
     s = get_system("flutter")
-    t0 = time.perf_counter()
-    with warnings.catch_warnings(record=True) as caught:
-        warnings.simplefilter("always")
-        data, pts, fails = lco_campaign("flutter", "U", 17.5, **CAMPAIGN,
-                                        noise_fraction=noise_fraction, seed=3,
-                                        rig_options={"record_states": True})
-    wall = time.perf_counter() - t0
-    rows = []
-    for pt in pts:
-        row = {"U": pt.param, "stable": pt.stable, "h": pt.amplitude["h"],
-               "alpha": pt.amplitude["alpha"], "inv": pt.invasiveness,
-               "inv_per": pt.invasiveness_periodic, "growth": pt.growth,
-               "evals": pt.iterations, "h_true": np.nan, "alpha_true": np.nan,
-               "err_h": np.nan, "err_alpha": np.nan}
-        try:  # truth: the uncontrolled orbit Newton-corrected from the rig's true states
-            m = pt.measurement
-            V = orbit_from_samples(m.extra["states"], pt.frequency, m.sample_rate)
-            Vc, _T = correct_orbit(s, "U", pt.param, V, 2 * np.pi / pt.frequency)
-            a = centred_amplitudes(Vc)
-            if abs(a[0] / pt.amplitude["h"] - 1) < 0.2:
-                row.update(h_true=a[0], alpha_true=a[2], err_h=pt.amplitude["h"] / a[0] - 1,
-                           err_alpha=pt.amplitude["alpha"] / a[2] - 1)
-        except Exception:  # Newton at a cycle fold is singular: no reference there
-            pass
-        rows.append(row)
-    return {"wall_s": wall, "rows": rows, "failures": fails, "n_records": data.sizes["record"],
-            "warnings": [str(w.message) for w in caught]}
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return lco_truth(s, s.param_vector(overrides), "U", lo, hi, points, ["h", "alpha"], "h")
 
 
-CAMPAIGN = dict(amplitudes=np.linspace(0.005, 0.037, 9), n_points=13, ds=0.8,
-                bounds=(14.0, 17.6))
+def curve_distance(points: list[dict], curve: dict | None) -> float:
+    """Largest distance of a point to the continued branch, relative to the point's
+    amplitude: ``min sqrt((ΔU/U)² + (Δh/h)²)`` over the branch densified as a polyline (the
+    measure that holds at a fold, where the orbit at a fixed U is ill-conditioned)."""
+    if curve is None or not points:
+        return float("nan")
+    u, h = np.asarray(curve["param"]), np.asarray(curve["amplitude"]["h"])
+    t = np.linspace(0.0, 1.0, 41)[:, None]
+    ud, hd = (u[:-1] + t * np.diff(u)).ravel(), (h[:-1] + t * np.diff(h)).ravel()
+    return max(
+        float(
+            np.min(
+                np.hypot(
+                    (ud - p["param"]) / p["param"], (hd - p["amplitude"]["h"]) / p["amplitude"]["h"]
+                )
+            )
+        )
+        for p in points
+    )
 
 
-def _table(d: dict) -> str:
-    lines = ["| U [m/s] | label | h [mm] | h truth | err h | α [rad] | α truth | err α | "
-             "u_rms/feedback | periodic part | growth/period |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
-    for r in d["rows"]:
-        lab = {True: "stable", False: "unstable", None: "?"}[r["stable"]]
-        lines.append(
-            f"| {r['U']:.2f} | {lab} | {1e3 * r['h']:.4f} | {1e3 * r['h_true']:.4f} | "
-            f"{100 * r['err_h']:+.2f} % | {r['alpha']:.5f} | {r['alpha_true']:.5f} | "
-            f"{100 * r['err_alpha']:+.2f} % | {r['inv']:.1e} | {r['inv_per']:.1e} | "
-            f"{r['growth']:.3f} |")
-    return "\n".join(lines)
+def _err(p: dict) -> float:
+    e = p.get("relative_error")
+    return max(abs(v) for v in e.values()) if e else float("nan")
 
 
-def _failures(d: dict) -> list[str]:
-    """Failure reasons as a list (they are reported, never recorded as LCOs)."""
-    if not d["failures"]:
-        return []
-    return ["Failures (reported, not recorded):", ""] + [
-        f"- U = {f.param:g} m/s: {f.reason}" for f in d["failures"]] + [""]
+def table(points: list[dict]) -> list[str]:
+    rows = [
+        "| U [m/s] | label | h [mm] | h truth | err h | α [rad] | α truth | err α |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    for p in sorted(points, key=lambda q: (q["param"], q["amplitude"]["h"])):
+        t = p.get("truth_amplitude", {})
+        e = p.get("relative_error", {})
+        lab = {True: "stable", False: "unstable"}.get(p["stable"], "?")
+        rows.append(
+            f"| {p['param']:.3f} | {lab} | {1e3 * p['amplitude']['h']:.4f} | "
+            f"{1e3 * t.get('h', np.nan):.4f} | {100 * e.get('h', np.nan):+.2f} % | "
+            f"{p['amplitude']['alpha']:.5f} | {t.get('alpha', np.nan):.5f} | "
+            f"{100 * e.get('alpha', np.nan):+.2f} % |"
+        )
+    return rows
 
 
-LOAD = ""
+# ------------------------------------------------------------------------------ diagram
+def diagram(tmp: Path) -> list[str]:
+    md = ["### The PP-CBC diagram at U = 15, 15.5, …, 17.5 and 17.9 m/s (14 LCOs)", ""]
+    values = ",".join(f"{u:g}" for u in SPEEDS)
+    runs = {}
+    for label, extra in (("noise-free", []), ("1 % noise", ["--noise-fraction", "0.01"])):
+        out = tmp / f"diagram_{len(runs)}.nc"
+        cmd = [
+            "flutter",
+            "--protocol",
+            "ppcbc",
+            "--values",
+            values,
+            "--seed",
+            "1",
+            "--no-truth",
+            "--out",
+            str(out),
+            *extra,
+        ]
+        d, wall, cpu, rc = cli(cmd)
+        compare(d["points"], {}, min(SPEEDS), max(SPEEDS))
+        runs[label] = (d, wall, cpu, rc, cmd)
+        print(
+            f"diagram {label}: {len(d['points'])} LCOs, {wall:.1f} s wall, {cpu:.1f} s CPU, "
+            f"max error {100 * max(map(_err, d['points']), default=np.nan):.3f} %",
+            flush=True,
+        )
+    lib = library()
+    md += [
+        "Defaults of `flutter` only (polar target n_h = 10 in the (h, α) plane, "
+        "kp = −150, kd = −20, 100 Hz output filter, the amplitude scan of its "
+        "settings, grid continued above where Ξ < 0); 1 % noise means σ of 1 % of the "
+        "smallest LCO's amplitude per channel (σ_h = 74 µm, σ_α = 0.22 mrad), records of "
+        "8 periods. Truth: the model's orbit Newton-corrected at the measured U.",
+        "",
+        "| run | LCOs | failures | max error | wall | CPU |",
+        "|---|---|---|---|---|---|",
+    ]
+    for label, (d, wall, cpu, rc, _) in runs.items():
+        md.append(
+            f"| CLI, {label} (exit {rc}) | {len(d['points'])} / 14 | "
+            f"{len(d.get('failures', []))} | "
+            f"{100 * max(map(_err, d['points']), default=np.nan):.3f} % | "
+            f"**{wall:.1f} s** | {cpu:.1f} s |"
+        )
+    for label, r in lib.items():
+        md.append(
+            f"| library `ppcbc_campaign`, {label} | {r['n']} / 14 | {r['failures']} | "
+            f"– | {r['wall']:.1f} s | {r['cpu']:.1f} s |"
+        )
+    md += [
+        "",
+        "CLI wall and CPU include the interpreter, imports and compilation (numba "
+        "loop from its on-disk cache, JAX); the library's first call includes the rig's "
+        "compilation in this process, its second call does not.",
+        "",
+        "Commands: `" + "bifid cbc " + " ".join(runs["1 % noise"][4]) + "` (and without "
+        "`--noise-fraction`).",
+        "",
+        "**1 % noise:**",
+        "",
+        *table(runs["1 % noise"][0]["points"]),
+        "",
+        "**Noise-free:**",
+        "",
+        *table(runs["noise-free"][0]["points"]),
+        "",
+    ]
+    return md
+
+
+def library() -> dict[str, dict]:
+    """The same campaign (1 % noise) in this process, twice."""
+    from bifid.cbc import ppcbc_campaign
+
+    out = {}
+    for label in ("library, first call", "library, second call"):
+        t0, c0 = time.perf_counter(), time.process_time()
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            r = ppcbc_campaign("flutter", param="U", values=SPEEDS, noise_fraction=0.01, seed=1)
+        out[label.split(", ")[1]] = {
+            "wall": time.perf_counter() - t0,
+            "cpu": time.process_time() - c0,
+            "n": len(r.points),
+            "failures": len(r.failures),
+        }
+    return out
+
+
+# ------------------------------------------------------------------------- continuation
+def _sets(f2: float, f3: float) -> list[str]:
+    return (
+        []
+        if (f2, f3) == (1.0, 1.0)
+        else ["--set", f"ka2={KA2 * f2:g}", "--set", f"ka3={KA3 * f3:g}"]
+    )
+
+
+def _gap(points: list[dict]) -> float:
+    """Largest step between consecutive measured points along the branch, relative to the
+    branch's extent in (U, h) normalised by their ranges."""
+    u = np.array([p["param"] for p in points])
+    h = np.array([p["amplitude"]["h"] for p in points])
+    if len(u) < 3:
+        return np.inf
+    du, dh = np.diff(u) / max(np.ptp(u), 1e-12), np.diff(h) / max(np.ptp(h), 1e-12)
+    return float(np.max(np.hypot(du, dh)))
+
+
+def continuation(tmp: Path) -> list[str]:
+    md = [
+        "### `--continuation`: both LCO branches round the cycle fold",
+        "",
+        "`bifid cbc flutter --protocol ppcbc --continuation 40 --range 17.5 LOW "
+        "--noise-fraction 0.01 [--set ka2=… --set ka3=…]`: the scan at 17.5 m/s, then "
+        "each LCO found there followed by continuation of the measured zero problem "
+        "towards LOW (below the cycle fold) and back.",
+        "",
+        "| ka2, ka3 (× default) | LOW | points | unstable / stable | cycle fold: CBC | "
+        "largest step (of the branch) | max error | failures | wall |",
+        "|---|---|---|---|---|---|---|---|---|",
+    ]
+    for f2, f3 in ((1.0, 1.0), (1.0, 1.25), (0.75, 0.75), (1.25, 0.75)):
+        low = (
+            14.0
+            if (f2, f3) == (1.0, 1.0)
+            else {(1.0, 1.25): 16.0, (0.75, 0.75): 16.8, (1.25, 0.75): 12.0}[(f2, f3)]
+        )
+        out = tmp / f"cont_{f2}_{f3}.nc"
+        cmd = [
+            "flutter",
+            "--protocol",
+            "ppcbc",
+            "--continuation",
+            "40",
+            "--range",
+            "17.5",
+            f"{low:g}",
+            "--noise-fraction",
+            "0.01",
+            "--seed",
+            "1",
+            "--no-truth",
+            "--out",
+            str(out),
+            *_sets(f2, f3),
+        ]
+        d, wall, _cpu, _rc = cli(cmd)
+        over = {} if (f2, f3) == (1.0, 1.0) else {"ka2": KA2 * f2, "ka3": KA3 * f3}
+        curve = compare(d["points"], over, low, 17.5)
+        cont = d["points"]
+        n_u = sum(p["stable"] is False for p in cont)
+        n_s = sum(p["stable"] is True for p in cont)
+        folds = ", ".join(f"{f['param']:.3f}" for f in d.get("cycle_folds", [])) or "–"
+        fold_u = [f["param"] for f in d.get("cycle_folds", [])]
+        # away from the cycle fold (0.1 m/s), where an orbit at a fixed U is well defined
+        away = [p for p in cont if all(abs(p["param"] - u) > 0.1 for u in fold_u)]
+        md.append(
+            f"| {f2:g}, {f3:g} | {low:g} | {len(cont)} | {n_u} / {n_s} | {folds} | "
+            f"{_gap(cont):.3f} | {100 * max(map(_err, away), default=np.nan):.2f} % "
+            f"({len(away)}) | {100 * curve_distance(cont, curve):.2f} % | "
+            f"{len(d.get('failures', []))} | {wall:.0f} s |"
+        )
+        print(md[-1], flush=True)
+    md += [
+        "",
+        "Max error, same U: against the orbit Newton-corrected at the point's U, the points "
+        "more than 0.1 m/s from the cycle fold; max distance: to the continued branch, "
+        "`min √((ΔU/U)² + (Δh/h)²)`, every point. "
+        "Largest step: the longest chord between consecutive points in the (U, h) "
+        "plane with both normalised by the branch's extent (no gap at the fold: the "
+        "steps there are among the shortest).",
+        "",
+    ]
+    return md
+
+
+# ----------------------------------------------------------------------------- variants
+def bistable(f2: float, f3: float) -> tuple[float, float, list]:
+    """(cycle fold, Hopf speed, secondary points) of a variant by continuation."""
+    from bifid.continuation import ContinuationOptions, continue_from_hopf
+    from bifid.systems import get_system
+
+    s = get_system("flutter")
+    p = s.param_vector({"ka2": KA2 * f2, "ka3": KA3 * f3})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        _eq, brs = continue_from_hopf(
+            s,
+            "U",
+            10.0,
+            22.0,
+            p=p,
+            n_mesh=48,
+            orbit_options=(
+                ContinuationOptions(
+                    ds=1e-3, ds_max=0.3, ds_min=1e-9, p_min=8.0, p_max=22.0, max_steps=400
+                )
+            ),
+        )
+    br = brs[0]
+    return (
+        float(np.min(br.params)),
+        float(br.params[0]),
+        [(sp.kind, sp.param) for sp in br.special_points if sp.kind != "cycle_fold"],
+    )
+
+
+def variants(tmp: Path) -> list[str]:
+    md = [
+        "### Flutter variants: other pitch stiffness, 6 speeds in each bistable range",
+        "",
+        "`bifid cbc flutter --protocol ppcbc --values V1,…,V6 --set ka2=… --set ka3=…` "
+        "with every setting derived for the variant (the amplitude grid and noise "
+        "reference from its continued cycles) except the gains and rig of `flutter`; "
+        "the speeds span the bistable range (cycle fold to Hopf point, 5 % in from each "
+        "end).",
+        "",
+        "| ka2, ka3 (× default) | bistable range [m/s] | secondary | measured | failures | "
+        "max error | max error, unstable | wall |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
+    total, measured = 0, 0
+    for f2, f3 in VARIANTS:
+        lo, hopf, secondary = bistable(f2, f3)
+        w = hopf - lo
+        values = np.linspace(lo + 0.05 * w, hopf - 0.05 * w, 6)
+        out = tmp / f"var_{f2}_{f3}.nc"
+        cmd = [
+            "flutter",
+            "--protocol",
+            "ppcbc",
+            "--values",
+            ",".join(f"{v:.4f}" for v in values),
+            "--seed",
+            "1",
+            "--no-truth",
+            "--out",
+            str(out),
+            *_sets(f2, f3),
+        ]
+        d, wall, _cpu, _rc = cli(cmd)
+        compare(d["points"], {"ka2": KA2 * f2, "ka3": KA3 * f3}, lo, hopf)
+        total += 12
+        measured += len(d["points"])
+        unstable = [
+            p for p in d["points"] if p.get("truth_stable") is False or p["stable"] is False
+        ]
+        sec = ", ".join(f"{k} {u:.2f}" for k, u in secondary) or "–"
+        md.append(
+            f"| {f2:g}, {f3:g} | {lo:.2f} – {hopf:.2f} | {sec} | "
+            f"{len(d['points'])} / 12 | {len(d.get('failures', []))} | "
+            f"{100 * max(map(_err, d['points']), default=np.nan):.2f} % | "
+            f"{100 * max(map(_err, unstable), default=np.nan):.2f} % | {wall:.0f} s |"
+        )
+        for f in d.get("failures", []):
+            md.append(
+                f"|  | failure at {f.get('param', '?')} | {str(f['reason'])[:90]} | | | | | |"
+            )
+        print(md[-1], flush=True)
+    md += [
+        "",
+        f"**{measured} of {total} requested LCOs measured "
+        f"({100 * measured / max(total, 1):.0f} %)**; the others are failures with their "
+        "reason (listed).",
+        "",
+    ]
+    return md
 
 
 def main() -> None:
-    global LOAD
     ap = argparse.ArgumentParser()
-    ap.add_argument("--quick", action="store_true", help="rig speed only, no file written")
+    ap.add_argument("--only", choices=("diagram", "continuation", "variants"))
     args = ap.parse_args()
-    import os
-
-    LOAD = "{:.1f} / {:.1f} / {:.1f} (1/5/15 min, 2 cores shared)".format(*os.getloadavg())
-    speed = rig_speed(20.0, 7)
-    speed_noise = rig_speed(20.0, 7, noise={"h": 7.4e-5, "alpha": 2.2e-4})
-    speed_jax = rig_speed(4.0, 5, engine="jax")
-    base = scipy_baseline(0.2 if args.quick else 0.5)
-    ratio = speed["realtime"] / base["realtime"]
-    print(f"rig: {speed['realtime']:.0f}x real time (with noise {speed_noise['realtime']:.0f}x, "
-          f"first call {speed['compile_s']:.1f} s); JAX engine {speed_jax['realtime']:.0f}x; "
-          f"solve_ivp loop: {base['realtime']:.2f}x; ratio {ratio:.0f}")
-    if args.quick:
-        return
-    camp = campaign(0.01)
-    print(f"campaign (1 % noise): {camp['wall_s']:.1f} s wall, {len(camp['rows'])} LCOs",
-          flush=True)
-    print(_table(camp), flush=True)
-    clean = diagram(None)
-    print(f"diagram (noise-free): {clean['wall_s']:.1f} s wall, {len(clean['rows'])} LCOs")
-    print(_table(clean), flush=True)
-    noisy = diagram(0.01)
-    print(f"diagram (1 % noise): {noisy['wall_s']:.1f} s wall, {len(noisy['rows'])} LCOs")
-    print(_table(noisy))
+    load = "{:.1f} / {:.1f} / {:.1f}".format(*os.getloadavg())
+    parts = {"diagram": diagram, "continuation": continuation, "variants": variants}
     md = [
-        "## cbc — virtual rig and PP-CBC (flutter, 5 kHz)",
+        "## cbc — PP-CBC campaigns on the flutter model (virtual rig, 5 kHz)",
         "",
-        "`benchmarks/bench_cbc.py`. Rig: flutter model at U = 16 m/s sampled at 5 kHz with the "
-        "PP-CBC controller (polar target in the (h, α) plane, n_h = 10, kp = −150, kd = −20) "
-        "evaluated on every sample, zero-order hold, RK4 per sample interval. Engines: "
-        "`numba` (the default for the built-in systems: one loop compiled once and cached on "
-        "disk) and `jax` (any system: one compiled `lax.scan` per 4096-sample block). "
-        "Baseline: the same sampled rig and controller as a Python loop calling "
-        "`scipy.integrate.solve_ivp` once per sample interval (numpy field with M⁻¹ "
-        "precomputed, rtol 1e-9). Medians of repeated runs after the first call; machine "
-        f"load average during the run: {LOAD}.",
+        "`benchmarks/bench_cbc.py`: every campaign through the CLI in a fresh process. "
+        f"Machine load average at the start: {load} (1/5/15 min, 2 cores shared).",
         "",
-        "| | simulated s / wall s | wall for the run | vs solve_ivp loop |",
-        "|---|---|---|---|",
-        f"| VirtualRig, numba engine (median of 7 × {speed['sim_s']:.0f} s) | "
-        f"**{speed['realtime']:.0f}×** | {speed['wall_s']:.3f} s | "
-        f"**{speed['realtime'] / base['realtime']:.0f}×** |",
-        f"| numba engine with 1 % measurement noise (7 × {speed_noise['sim_s']:.0f} s) | "
-        f"{speed_noise['realtime']:.0f}× | {speed_noise['wall_s']:.3f} s | "
-        f"{speed_noise['realtime'] / base['realtime']:.0f}× |",
-        f"| VirtualRig, JAX engine (median of 5 × {speed_jax['sim_s']:.0f} s) | "
-        f"{speed_jax['realtime']:.0f}× | {speed_jax['wall_s']:.3f} s | "
-        f"{speed_jax['realtime'] / base['realtime']:.0f}× |",
-        f"| solve_ivp loop ({base['sim_s']} s simulated) | {base['realtime']:.2f}× | "
-        f"{base['wall_s']:.1f} s | 1 |",
-        "",
-        f"First call (numba: loading the on-disk cache, or compiling on a fresh clone; "
-        f"JAX: compiling both block sizes): numba {speed['compile_s']:.1f} s, "
-        f"JAX {speed_jax['compile_s']:.1f} s.",
-        "",
-        "### PP-CBC diagram of issue 3 §5 by amplitude scans: both LCOs at U = 15, 15.5, "
-        "16, 16.5, 17 m/s and the unstable one at 17.5 m/s (11 LCOs)",
-        "",
-        "Amplitude scan (15 target amplitudes, 4–32 mm, stopping after the second LCO at "
-        "each U; 5 amplitudes, 4–12 mm at 17.5 m/s), "
-        "polar target n_h = 10, Newton–Broyden on its coefficients from the bracket of "
-        "each zero of Ξ, switch-off stability test, the flutter defaults (kp = −150, "
-        "kd = −20, controller output low-pass at 100 Hz). Truth: the uncontrolled "
-        "orbit Newton-corrected (Fourier collocation, 64 points) at the same U from the "
-        "rig's true states. Amplitudes are `max|x − x̄|` (centred). Invasiveness: "
-        "`rms(u)/rms(kp(h − h̄) + kd(α − ᾱ))` of the recorded control, and of its periodic "
-        "part only (mean + 10 harmonics of ω fitted over the record: without the "
-        "measurement noise the gains pass on, kp ε_h + kd ε_α, which is broadband and "
-        "cannot bias the orbit).",
-        "",
-        f"**Noise-free: {clean['wall_s']:.0f} s wall** for {clean['sim_s']:.0f} s of rig "
-        f"time, {len(clean['rows'])} LCOs, {len(clean['failures'])} failures (the same rig "
-        f"time on the solve_ivp loop: ≈ {clean['sim_s'] / base['realtime'] / 60:.0f} min, "
-        "estimated from its speed above).",
-        "",
-        _table(clean),
-        "",
-        *_failures(clean),
-        "**Measurement noise 1 % of the smallest heave amplitude** (σ_h = 74 µm, "
-        f"σ_α = 0.22 mrad, 8 measured periods): {noisy['wall_s']:.0f} s wall for "
-        f"{noisy['sim_s']:.0f} s of rig time (solve_ivp loop ≈ "
-        f"{noisy['sim_s'] / base['realtime'] / 60:.0f} min), "
-        f"{len(noisy['rows'])} LCOs, {len(noisy['failures'])} failures.",
-        "",
-        _table(noisy),
-        "",
-        *_failures(noisy),
     ]
-    md += [
-        "",
-        "### A continuation campaign: scan + continuation round the fold "
-        "(`bifid.cbc.lco_campaign`)",
-        "",
-        "`lco_campaign(\"flutter\", \"U\", 17.5, amplitudes=np.linspace(0.005, 0.037, 9), "
-        "n_points=13, ds=0.8, bounds=(14.0, 17.6), noise_fraction=0.01, seed=3)`: amplitude "
-        "scan at U = 17.5 m/s (polar target, n_h = 10, the default), then Newton–Broyden + "
-        "pseudo-arclength in U from the unstable LCO round the cycle fold (U ≈ 14.94 m/s) "
-        "onto the stable branch; switch-off stability test at every point; 1 % noise, "
-        "8 measured periods. Truth: the uncontrolled orbit Newton-corrected at the measured U "
-        "from the rig's true states (none where Newton fails: at the fold it is singular, "
-        "and a measured point just past the fold has no orbit to converge to).",
-        "",
-        f"**{camp['wall_s']:.1f} s wall for {len(camp['rows'])} LCOs**, "
-        f"{len(camp['failures'])} failures.",
-        "",
-        _table(camp),
-        "",
-        *_failures(camp),
-    ]
-    write_section("cbc", "\n".join(md))
+    with tempfile.TemporaryDirectory() as d:
+        for name, fn in parts.items():
+            if args.only in (None, name):
+                md += fn(Path(d))
+    print("\n".join(md))
+    if args.only is None:
+        write_section("cbc", "\n".join(md))
 
 
 if __name__ == "__main__":

@@ -6,13 +6,13 @@ Run from the repository root or the benchmarks directory::
     .venv/bin/python benchmarks/bench_cbc_forced.py --quick   # 1 % noise, one seed, prints only
 
 For ``duffing`` at Ω = 1.05 and ``shaw_pierre`` at Ω = 1.005 (both S-curves have two
-folds and an unstable middle branch), :func:`bifid.cbc.scurve_campaign` measures the
+folds and an unstable middle branch), :func:`bifid.cbc.forced_campaign` measures the
 S-curve on the virtual rig (100 Hz) noise-free and with white measurement noise of
 σ = 0.3 % and 1 % of the largest response amplitude of the observed signal in the
 forcing range (from continuation), two seeds each. Every accepted point is compared with
 
 - the uncontrolled response at the *same* forcing, Newton-corrected (Fourier collocation)
-  from the rig's true states (:func:`bifid.cbc._truth.correct_forced`) -- points where the
+  from the rig's true states (:func:`bifid.continuation.truth.correct_forced`) -- points where the
   S-curve is steep (``|dlnA/dlnγ| > 2``, next to the folds) are listed apart: there a
   forcing error δ becomes an amplitude error ``|dlnA/dlnγ| δ`` (infinite at the fold,
   where Newton at fixed γ is singular and may jump to the other branch);
@@ -20,7 +20,7 @@ forcing range (from continuation), two seeds each. Every accepted point is compa
   ``min sqrt((Δγ/γ)² + (ΔA/A)²)`` to its polyline, for every point;
 
 and the folds (extrema of γ along the measured curve, :func:`bifid.cbc.folds_of`) with the
-continuation folds. Noisy runs start higher (γ ≥ 0.005 / 0.006) than noise-free ones: a
+continuation folds. Noisy runs start higher (γ ≥ 0.005 / 0.0075) than noise-free ones: a
 point is accepted only when its forcing update is verified to ``precision`` = 0.5 % of γ
 (3σ), and the noise of that update, ``σ |k_p + iΩk_d| sqrt(2/n)``, does not shrink with γ.
 
@@ -50,18 +50,16 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 
 import bifid  # noqa: F401
 from _report import write_section
-from bifid.cbc import scurve_campaign
-from bifid.cbc._defaults import defaults_for
-from bifid.cbc._forced import ForcedCBCOptions, folds_of, frc_cbc
-from bifid.cbc._truth import correct_forced, forced_orbit_from_samples
+from bifid.cbc import ForcedCBCOptions, defaults_for, folds_of, forced_campaign, frc_cbc
 from bifid.continuation import ContinuationOptions, frc, scurve
+from bifid.continuation.truth import correct_forced, orbit_from_samples
 from bifid.errors import ConvergenceError
 from bifid.signal import max_abs
 from bifid.systems import get_system
 
 CASES = {
     "duffing": {"omega": 1.05, "range": (0.002, 0.03), "noisy_lo": 0.005},
-    "shaw_pierre": {"omega": 1.005, "range": (0.001, 0.02), "noisy_lo": 0.006},
+    "shaw_pierre": {"omega": 1.005, "range": (0.001, 0.02), "noisy_lo": 0.0075},
 }
 STEEP = 2.0  # |dlnA/dlnγ| of the continuation curve above this: "steep" (near a fold)
 
@@ -71,9 +69,13 @@ def reference(name: str) -> dict:
     c = CASES[name]
     s = get_system(name)
     lo, hi = c["range"]
-    br = scurve(s, c["omega"], (lo * 0.5, hi * 1.2), n_mesh=32,
-                options=ContinuationOptions(ds=0.005, ds_min=1e-9, ds_max=0.01,
-                                            max_steps=20000))
+    br = scurve(
+        s,
+        c["omega"],
+        (lo * 0.5, hi * 1.2),
+        n_mesh=32,
+        options=ContinuationOptions(ds=0.005, ds_min=1e-9, ds_max=0.01, max_steps=20000),
+    )
     f = np.asarray(br.data["forcing"])
     a = np.asarray(br.data["observed_amplitude"])
     folds = sorted(sp.param for sp in br.special("fold"))
@@ -108,7 +110,7 @@ def truth_errors(name: str, pts: list, distance, slope) -> tuple[list, list, lis
     for p in pts:
         dist.append(distance(p))
         m = p.measurement
-        V = forced_orbit_from_samples(m.extra["states"], m.phase, p.force_phase, n_mesh=32)
+        V = orbit_from_samples(m.extra["states"], m.phase - p.force_phase, m.sample_rate, n_mesh=32)
         try:
             Vc = correct_forced(s, p.omega, p.forcing, V, n_mesh=32)
         except ConvergenceError:
@@ -122,22 +124,32 @@ def truth_errors(name: str, pts: list, distance, slope) -> tuple[list, list, lis
 
 def evaluate(name: str, pts: list, ref: dict) -> dict:
     err_far, err_near, dist, n_newton_fail = truth_errors(
-        name, pts, lambda p: distance_to_curve(ref, p.forcing, p.amplitude),
-        lambda s, p, Vc, obs: log_slope(ref, p.forcing, p.amplitude))
+        name,
+        pts,
+        lambda p: distance_to_curve(ref, p.forcing, p.amplitude),
+        lambda s, p, Vc, obs: log_slope(ref, p.forcing, p.amplitude),
+    )
     got = sorted(f["forcing"] for f in folds_of(pts))
-    fold_err = ([g / r - 1.0 for g, r in zip(got, ref["folds"], strict=True)]
-                if len(got) == len(ref["folds"]) else None)
+    fold_err = (
+        [g / r - 1.0 for g, r in zip(got, ref["folds"], strict=True)]
+        if len(got) == len(ref["folds"])
+        else None
+    )
     middle = 0
     if len(got) == 2:
         fl = folds_of(pts)
         lo_a, hi_a = sorted(f["amplitude"] for f in fl)
         middle = sum(lo_a < p.amplitude < hi_a for p in pts)
     return {
-        "n": len(pts), "middle": middle,
+        "n": len(pts),
+        "middle": middle,
         "err_far": max(err_far, default=float("nan")),
-        "err_near": max(err_near, default=float("nan")), "n_near": len(err_near),
-        "newton_fail": n_newton_fail, "dist": max(dist, default=float("nan")),
-        "folds": got, "fold_err": fold_err,
+        "err_near": max(err_near, default=float("nan")),
+        "n_near": len(err_near),
+        "newton_fail": n_newton_fail,
+        "dist": max(dist, default=float("nan")),
+        "folds": got,
+        "fold_err": fold_err,
         "floor": max((p.forcing_floor for p in pts), default=float("nan")),
         "periods": statistics.median([p.measured_periods for p in pts]) if pts else 0,
         "max_periods": max((p.measured_periods for p in pts), default=0),
@@ -152,18 +164,27 @@ def run(name: str, fraction: float, seed: int, ref: dict) -> dict:
     t0 = time.perf_counter()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        try:
-            _, curves, fails = scurve_campaign(
-                name, c["omega"], (lo, c["range"][1]),
-                noise={sig: sigma} if sigma > 0 else None, seed=seed,
-                rig_options={"record_states": True})
-            pts = curves[0]
-        except ConvergenceError as exc:  # not a single point
-            pts, fails = [], [str(exc)]
+        r = forced_campaign(
+            name,
+            "scurve",
+            omega=c["omega"],
+            span=(lo, c["range"][1]),
+            noise={sig: sigma} if sigma > 0 else None,
+            seed=seed,
+            rig_options={"record_states": True},
+        )
+        pts, fails = r.points, r.failures
     wall = time.perf_counter() - t0
     out = evaluate(name, pts, ref)
-    out.update(system=name, fraction=fraction, sigma=sigma, seed=seed, lo=lo, wall=wall,
-               failures=[getattr(f, "reason", f) for f in fails])
+    out.update(
+        system=name,
+        fraction=fraction,
+        sigma=sigma,
+        seed=seed,
+        lo=lo,
+        wall=wall,
+        failures=[getattr(f, "reason", f) for f in fails],
+    )
     return out
 
 
@@ -186,8 +207,10 @@ def _cells(r: dict, fold_digits: int) -> tuple[str, str, str]:
     if r["fold_err"] is None:
         folds = f"{len(r['folds'])} found"
     else:
-        folds = ", ".join(f"{g:.5f} ({e:+.{fold_digits}%})" for g, e in
-                          zip(r["folds"], r["fold_err"], strict=True))
+        folds = ", ".join(
+            f"{g:.5f} ({e:+.{fold_digits}%})"
+            for g, e in zip(r["folds"], r["fold_err"], strict=True)
+        )
     fails = str(len(r["failures"]))
     if r["failures"]:
         fails += ": " + str(r["failures"][0])[:90].replace("|", "/")
@@ -195,10 +218,12 @@ def _cells(r: dict, fold_digits: int) -> tuple[str, str, str]:
 
 
 def table(rows: list[dict]) -> str:
-    head = ("| system | noise σ | seed | γ from | points (middle) | max amp. err, same γ "
-            "| steep (n) | max dist. to curve | folds: CBC (err) | failures "
-            "| max forcing floor | periods median / max | wall |\n"
-            "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+    head = (
+        "| system | noise σ | seed | γ from | points (middle) | max amp. err, same γ "
+        "| steep (n) | max dist. to curve | folds: CBC (err) | failures "
+        "| max forcing floor | periods median / max | wall |\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|---|\n"
+    )
     lines = []
     for r in rows:
         noise, folds, fails = _cells(r, 2)
@@ -206,7 +231,8 @@ def table(rows: list[dict]) -> str:
             f"| {r['system']} | {noise} | {r['seed']} | {r['lo']:g} | {r['n']} ({r['middle']}) "
             f"| {_pct(r['err_far'])} | {_pct(r['err_near'])} ({r['n_near']}) "
             f"| {_pct(r['dist'])} | {folds} | {fails} | {_pct(r['floor'])} "
-            f"| {r['periods']:.0f} / {r['max_periods']:.0f} | {r['wall']:.1f} s |")
+            f"| {r['periods']:.0f} / {r['max_periods']:.0f} | {r['wall']:.1f} s |"
+        )
     return head + "\n".join(lines) + "\n"
 
 
@@ -221,15 +247,24 @@ def frc_reference(name: str) -> dict:
     """Dense continuation FRC: polyline (Ω, A), folds, ranges and largest amplitude."""
     c = FRC_CASES[name]
     w0, w1 = c["range"]
-    br = frc(get_system(name), c["forcing"], (w0 - 0.02, w1 + 0.02), n_mesh=32,
-             options=ContinuationOptions(ds=0.005, ds_min=1e-9, ds_max=0.01,
-                                         max_steps=20000))
+    br = frc(
+        get_system(name),
+        c["forcing"],
+        (w0 - 0.02, w1 + 0.02),
+        n_mesh=32,
+        options=ContinuationOptions(ds=0.005, ds_min=1e-9, ds_max=0.01, max_steps=20000),
+    )
     w = np.asarray(br.params)
     a = np.asarray(br.data["observed_amplitude"])
     inside = (w >= w0) & (w <= w1)
-    return {"w": w, "a": a, "folds": sorted(sp.param for sp in br.special("fold")),
-            "a_max": float(a[inside].max()), "w_ptp": w1 - w0,
-            "a_ptp": float(np.ptp(a[inside]))}
+    return {
+        "w": w,
+        "a": a,
+        "folds": sorted(sp.param for sp in br.special("fold")),
+        "a_max": float(a[inside].max()),
+        "w_ptp": w1 - w0,
+        "a_ptp": float(np.ptp(a[inside])),
+    }
 
 
 def frc_distance(ref: dict, omega: float, amplitude: float) -> float:
@@ -245,8 +280,9 @@ def gamma_sensitivity(s, p, Vc, obs: int, rel: float = 2e-3) -> float:
     a = []
     for f in (1.0 + rel, 1.0 - rel):
         try:
-            a.append(float(max_abs(correct_forced(s, p.omega, p.forcing * f, Vc,
-                                                  n_mesh=32)[:, obs])))
+            a.append(
+                float(max_abs(correct_forced(s, p.omega, p.forcing * f, Vc, n_mesh=32)[:, obs]))
+            )
         except ConvergenceError:
             return math.inf
     return (math.log(a[0]) - math.log(a[1])) / (math.log(1.0 + rel) - math.log(1.0 - rel))
@@ -254,19 +290,25 @@ def gamma_sensitivity(s, p, Vc, obs: int, rel: float = 2e-3) -> float:
 
 def frc_evaluate(name: str, pts: list, ref: dict) -> dict:
     err_far, err_near, dist, n_newton_fail = truth_errors(
-        name, pts, lambda p: frc_distance(ref, p.omega, p.amplitude), gamma_sensitivity)
+        name, pts, lambda p: frc_distance(ref, p.omega, p.amplitude), gamma_sensitivity
+    )
     got = sorted(f["omega"] for f in folds_of(pts, "omega"))
     ok = len(got) == len(ref["folds"]) == 2
     width = ref["folds"][1] - ref["folds"][0] if len(ref["folds"]) == 2 else math.nan
     return {
-        "n": len(pts), "err_far": max(err_far, default=float("nan")),
-        "err_near": max(err_near, default=float("nan")), "n_near": len(err_near),
-        "newton_fail": n_newton_fail, "dist": max(dist, default=float("nan")),
+        "n": len(pts),
+        "err_far": max(err_far, default=float("nan")),
+        "err_near": max(err_near, default=float("nan")),
+        "n_near": len(err_near),
+        "newton_fail": n_newton_fail,
+        "dist": max(dist, default=float("nan")),
         "folds": got,
-        "fold_err": ([g / r - 1.0 for g, r in zip(got, ref["folds"], strict=True)]
-                     if ok else None),
-        "fold_width": (max(abs(g - r) for g, r in zip(got, ref["folds"], strict=True)) / width
-                       if ok else float("nan")),
+        "fold_err": ([g / r - 1.0 for g, r in zip(got, ref["folds"], strict=True)] if ok else None),
+        "fold_width": (
+            max(abs(g - r) for g, r in zip(got, ref["folds"], strict=True)) / width
+            if ok
+            else float("nan")
+        ),
         "floor": max((p.forcing_floor for p in pts), default=float("nan")),
         "periods": statistics.median([p.measured_periods for p in pts]) if pts else 0,
         "max_periods": max((p.measured_periods for p in pts), default=0),
@@ -278,10 +320,15 @@ def frc_run(name: str, fraction: float, seed: int, ref: dict) -> dict:
     d = defaults_for(name)
     s = get_system(name)
     sigma = fraction * ref["a_max"]
-    rig = d.rig(s, noise={d.signal: sigma} if sigma > 0 else None, seed=seed,
-                record_states=True)
-    kw = dict(signal=d.signal, kp=d.kp, kd=d.kd, n_harmonics=d.n_harmonics,
-              settle_periods=d.settle_periods, measure_periods=d.measure_periods)
+    rig = d.rig(s, noise={d.signal: sigma} if sigma > 0 else None, seed=seed, record_states=True)
+    kw = dict(
+        signal=d.signal,
+        kp=d.kp,
+        kd=d.kd,
+        n_harmonics=d.n_harmonics,
+        settle_periods=d.settle_periods,
+        measure_periods=d.measure_periods,
+    )
     if sigma > 0:
         kw.update(d.noisy_options)
     t0 = time.perf_counter()
@@ -290,16 +337,24 @@ def frc_run(name: str, fraction: float, seed: int, ref: dict) -> dict:
         pts, fails = frc_cbc(rig, c["forcing"], c["range"], ForcedCBCOptions(**kw))
     wall = time.perf_counter() - t0
     out = frc_evaluate(name, pts, ref)
-    out.update(system=name, fraction=fraction, sigma=sigma, seed=seed, wall=wall,
-               failures=[f.reason for f in fails])
+    out.update(
+        system=name,
+        fraction=fraction,
+        sigma=sigma,
+        seed=seed,
+        wall=wall,
+        failures=[f.reason for f in fails],
+    )
     return out
 
 
 def frc_table(rows: list[dict]) -> str:
-    head = ("| system | noise σ | seed | points | max amp. err, same (γ, Ω) | steep (n) "
-            "| max dist. to curve | folds: CBC (err; / width) | failures "
-            "| max control floor | periods median / max | wall |\n"
-            "|---|---|---|---|---|---|---|---|---|---|---|---|\n")
+    head = (
+        "| system | noise σ | seed | points | max amp. err, same (γ, Ω) | steep (n) "
+        "| max dist. to curve | folds: CBC (err; / width) | failures "
+        "| max control floor | periods median / max | wall |\n"
+        "|---|---|---|---|---|---|---|---|---|---|---|---|\n"
+    )
     lines = []
     for r in rows:
         noise, folds, fails = _cells(r, 4)
@@ -309,15 +364,20 @@ def frc_table(rows: list[dict]) -> str:
             f"| {r['system']} | {noise} | {r['seed']} | {r['n']} | {_pct(r['err_far'])} "
             f"| {_pct(r['err_near'])} ({r['n_near']}) | {_pct(r['dist'])} | {folds} "
             f"| {fails} | {_pct(r['floor'])} | {r['periods']:.0f} / {r['max_periods']:.0f} "
-            f"| {r['wall']:.1f} s |")
+            f"| {r['wall']:.1f} s |"
+        )
     return head + "\n".join(lines) + "\n"
 
 
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--quick", action="store_true", help="1 %% noise, one seed; print only")
-    ap.add_argument("--only", choices=("scurve", "frc"), default=None,
-                    help="run one protocol only (prints, does not write BENCHMARKS.md)")
+    ap.add_argument(
+        "--only",
+        choices=("scurve", "frc"),
+        default=None,
+        help="run one protocol only (prints, does not write BENCHMARKS.md)",
+    )
     args = ap.parse_args()
     fractions = (0.01,) if args.quick else (0.0, 0.003, 0.01)
     seeds = (1,) if args.quick else (1, 2)
@@ -327,7 +387,7 @@ def main() -> None:
             refs[name] = reference(name)
             compile_s[name] = warmup(name)
             for frac in fractions:
-                for seed in (seeds if frac > 0 else (0,)):
+                for seed in seeds if frac > 0 else (0,):
                     r = run(name, frac, seed, refs[name])
                     rows.append(r)
                     print(table([r]).splitlines()[-1], file=sys.stderr, flush=True)
@@ -336,7 +396,7 @@ def main() -> None:
         for name in FRC_CASES:
             frc_refs[name] = frc_reference(name)
             for frac in fractions:
-                for seed in (seeds if frac > 0 else (0,)):
+                for seed in seeds if frac > 0 else (0,):
                     r = frc_run(name, frac, seed, frc_refs[name])
                     frc_rows.append(r)
                     print(frc_table([r]).splitlines()[-1], file=sys.stderr, flush=True)
@@ -344,20 +404,24 @@ def main() -> None:
         f"- `{n}`: continuation folds γ = {', '.join(f'{f:.7f}' for f in refs[n]['folds'])}; "
         f"largest amplitude in range {refs[n]['a_max']:.4f} (σ = 1 % of it: "
         f"{0.01 * refs[n]['a_max']:.4g}); rig warm-up (engine compile) {compile_s[n]:.2f} s"
-        for n in refs)
+        for n in refs
+    )
     frc_ref_lines = "\n".join(
         f"- `{n}`, γ = {FRC_CASES[n]['forcing']:g}, Ω ∈ {list(FRC_CASES[n]['range'])}: "
         f"continuation folds Ω = {', '.join(f'{f:.7f}' for f in frc_refs[n]['folds'])}; "
         f"largest amplitude in range {frc_refs[n]['a_max']:.4f} (σ = 1 % of it: "
         f"{0.01 * frc_refs[n]['a_max']:.4g})"
-        for n in frc_refs)
+        for n in frc_refs
+    )
     md = f"""## cbc_forced: forced CBC (S-curves, FRCs) with measurement noise (issue 3 §5)
 
 ### S-curves
 
-`scurve_campaign` on the virtual rig (100 Hz, derivative from samples, white measurement
-noise on the observed signal, σ relative to its largest response amplitude in the forcing
-range). Gains: noise-free `kp = kd = 0.5` (duffing) / `1` (shaw_pierre); noisy
+`forced_campaign(..., "scurve")` on the virtual rig (100 Hz, derivative from samples,
+white measurement noise on the observed signal, σ relative to its largest response
+amplitude in the forcing range). The S-curve is the measured zero problem in
+`(A1*, ψ, γ)` continued in the target's amplitude (each point solved for the force).
+Gains: noise-free `kp = kd = 0.5` (duffing) / `1` (shaw_pierre); noisy
 (`defaults_for(...).noisy_options`) `kp = kd = 0.1` (duffing) / `kp = 0, kd = 0.1`
 (shaw_pierre). A point is accepted only when its forcing update is verified to 0.5 % of γ
 and its response to 0.5 % of A₁* (3σ noise floors; the record is extended up to
@@ -377,7 +441,7 @@ the record each point was accepted on. Issue limits: amplitudes within 1 %, fold
 
 ### Frequency response curves
 
-`frc_cbc` (Newton–Broyden on the target's fundamental `(A1*, B1*)` with pseudo-arclength
+`frc_cbc` (Broyden corrector on the target's fundamental `(A1*, B1*)`, pseudo-arclength
 in `(A1*, B1*, Ω)`) on the same rigs, gains and noise levels, Ω upwards through the
 bistable range. A point is accepted only when the control's fundamental `u1` is below
 `tol · γ` plus its noise floor and that floor is below 0.5 % of γ (the control is then a
@@ -405,6 +469,7 @@ machine; `--only frc|scurve` runs one part and prints only).
     else:
         write_section("cbc_forced", md)
         print(md)
+
 
 if __name__ == "__main__":
     main()

@@ -1,4 +1,6 @@
-"""`bifid cbc`: JSON contract, dataset written point by point, --resume, failures reported."""
+"""`bifid cbc`: the measured diagram as JSON, the dataset written point by point, --resume
+(exact continuation, refusal of another campaign, nothing changed on a finished one),
+failures reported with exit 3."""
 
 from __future__ import annotations
 
@@ -16,12 +18,57 @@ _load_commands()
 RUNNER = CliRunner()
 
 # The coarse grid puts the secant estimate of the unstable LCO (r = 0.3357) near the
-# maximum of Ξ (A* ≈ 0.23), where Newton-Broyden on the polar target cannot start: the
-# scan must fall back to the bracketing secant and still find it.
-HOPF_ARGS = ["hopf", "--protocol", "ppcbc", "--set", "q5=1", "--values=-0.1",
-             "--amplitude-range", "0.2", "1.1", "--n-amplitudes", "4", "--measure-periods", "2",
-             "--settle-periods", "5", "--n-harmonics", "3", "--sample-rate", "100", "--no-truth",
-             "--quiet", "--json"]
+# maximum of Ξ (A* ≈ 0.23), where the Broyden corrector on the polar target cannot start:
+# the scan must fall back to the bracketing secant and still find it.
+HOPF_ARGS = [
+    "hopf",
+    "--protocol",
+    "ppcbc",
+    "--set",
+    "q5=1",
+    "--values=-0.1",
+    "--amplitude-range",
+    "0.2",
+    "1.1",
+    "--n-amplitudes",
+    "4",
+    "--measure-periods",
+    "2",
+    "--settle-periods",
+    "5",
+    "--n-harmonics",
+    "3",
+    "--sample-rate",
+    "100",
+    "--no-truth",
+    "--quiet",
+    "--json",
+]
+SCURVE_ARGS = [
+    "duffing",
+    "--protocol",
+    "scurve",
+    "--omega",
+    "1.05",
+    "--forcing-range",
+    "0.008",
+    "0.03",
+    "--sample-rate",
+    "40",
+    "--n-harmonics",
+    "3",
+    "--settle-periods",
+    "4",
+    "--measure-periods",
+    "2",
+    "--noise",
+    "2e-4",
+    "--seed",
+    "3",
+    "--no-truth",
+    "--quiet",
+    "--json",
+]
 
 
 def invoke(args):
@@ -30,7 +77,8 @@ def invoke(args):
 
 
 def test_ppcbc_json_dataset_and_resume(tmp_path):
-    """Check points in JSON and in the dataset, then that --resume re-records nothing."""
+    """Check points in the JSON diagram and in the dataset, then that --resume of the
+    finished campaign records nothing and leaves the file as it was."""
     out = tmp_path / "hopf.nc"
     r, data = invoke([*HOPF_ARGS, "--out", str(out)])
     assert r.exit_code == 0, r.stderr
@@ -40,20 +88,22 @@ def test_ppcbc_json_dataset_and_resume(tmp_path):
     assert [p["stable"] for p in pts] == [False, True]
     assert pts[0]["amplitude"]["u1"] == pytest.approx(r_u, rel=2e-3)
     assert pts[1]["amplitude"]["u1"] == pytest.approx(r_s, rel=2e-3)
-    assert all(p["mu"] == -0.1 and p["control_rms"] >= 0 for p in pts)
-    assert data["settings"]["protocol"] == "ppcbc" and data["complete"] is True
+    assert all(p["param"] == -0.1 and p["control_rms"] >= 0 for p in pts)
+    assert data["kind"] == "bifurcation" and data["source"] == "measurement"
+    assert data["complete"] is True and data["settings"]["campaign"]["protocol"] == "ppcbc"
     ds = load_dataset(out)
     assert ds.attrs["bifid_kind"] == "lco" and ds.sizes["record"] == 2
-    assert json.loads(ds.attrs["settings"])["options"]["kp"] == 1.0
+    assert json.loads(ds.attrs["settings"])["campaign"]["options"]["kp"] == 1.0
     np.testing.assert_array_equal(ds["stable"].values, [0, 1])
     # signals are centred and cover whole periods; the control is recorded
     assert np.abs(ds["signals"].isel(record=0).mean("time")).max() < 1e-3
     assert float(ds["control_rms"].max()) < 1e-3
 
+    before = out.read_bytes()
     r, again = invoke([*HOPF_ARGS, "--out", str(out), "--resume"])
     assert r.exit_code == 0, r.stderr
-    assert again["skipped_existing"] == 2 and again["points"] == []
-    assert load_dataset(out).sizes["record"] == 2
+    assert again["resumed_from"] == 2 and len(again["points"]) == 2
+    assert out.read_bytes() == before
 
 
 def test_failures_are_reported_and_not_recorded(tmp_path):
@@ -63,9 +113,11 @@ def test_failures_are_reported_and_not_recorded(tmp_path):
     r, data = invoke([*args, "--out", str(out)])
     assert r.exit_code == 3
     assert data["complete"] is False and data["failures"]
+    assert data["failures"][0]["param"] == -0.3 and data["failures"][0]["reason"]
     assert "error" in r.stderr
     ds = load_dataset(out)
     assert set(np.round(ds["param"].values, 6)) == {-0.1}
+    assert json.loads(ds.attrs["cbc_campaign"])["failures"][0]["param"] == -0.3
 
 
 @pytest.mark.parametrize(
@@ -74,7 +126,7 @@ def test_failures_are_reported_and_not_recorded(tmp_path):
         (["duffing", "--protocol", "ppcbc"], "forced"),
         (["hopf", "--protocol", "scurve"], "autonomous"),
         (["hopf", "--protocol", "magic"], "ppcbc, scurve or frc"),
-        (["hopf", "--protocol", "ppcbc", "--noise", "u9=1"], "not outputs"),
+        (["hopf", "--protocol", "ppcbc", "--values=-0.1", "--noise", "u9=1"], "not outputs"),
         (["duffing", "--protocol", "scurve", "--omega", "1.05"], "forcing-range"),
     ],
 )
@@ -89,40 +141,36 @@ def test_existing_output_needs_resume(tmp_path):
     """Check an existing --out is never overwritten without --resume."""
     out = tmp_path / "x.nc"
     out.write_bytes(b"not a dataset")
-    r = RUNNER.invoke(app, ["cbc", "hopf", "--protocol", "ppcbc", "--values=-0.1", "--out",
-                            str(out)])
+    r = RUNNER.invoke(
+        app, ["cbc", "hopf", "--protocol", "ppcbc", "--values=-0.1", "--out", str(out)]
+    )
     assert r.exit_code == 2 and "--resume" in r.stderr
     assert out.read_bytes() == b"not a dataset"
 
 
-def test_frc_resume_continues_the_curve(tmp_path):
-    """Check that an interrupted FRC (a shorter Ω range) continues with --resume from its
-    last points: new points only beyond them, the dataset holds both runs, and every
-    point lies on the FRC computed by numerical continuation (within 1 %)."""
-    from bifid.continuation import frc
-    from bifid.systems import get_system
+def test_resumed_scurve_is_the_uninterrupted_one(tmp_path):
+    """Check the S-curve cut after half its points (as an interruption leaves it) and
+    resumed equals the uninterrupted S-curve point for point, with noise; --resume with
+    another Ω refuses the file with one line (exit 2) and changes nothing."""
+    from bifid.data import save_dataset
 
-    out = tmp_path / "frc.nc"
-    base = ["duffing", "--protocol", "frc", "--forcing", "0.01", "--no-stability",
-            "--no-truth", "--quiet", "--json", "--out", str(out)]
-    r, first = invoke([*base, "--omega-range", "0.95", "0.99"])
+    ref, cut = tmp_path / "s.nc", tmp_path / "cut.nc"
+    r, full = invoke([*SCURVE_ARGS, "--out", str(ref)])
     assert r.exit_code == 0, r.stderr
-    n1 = len(first["points"])
-    om1 = [p["omega"] for p in first["points"]]
-    assert n1 >= 2 and max(om1) >= 0.99
-    r, second = invoke([*base, "--omega-range", "0.95", "1.01", "--resume"])
+    n = len(full["points"])
+    assert n >= 8 and len(full["folds"]) == 2
+    A = load_dataset(ref)
+    save_dataset(A.isel(record=slice(0, n // 2)), cut)
+    r, resumed = invoke([*SCURVE_ARGS, "--out", str(cut), "--resume"])
     assert r.exit_code == 0, r.stderr
-    assert second["resumed_from"] == n1
-    om2 = [p["omega"] for p in second["points"]]
-    assert om2 and min(om2) > max(om1) and max(om2) >= 1.01
-    ds = load_dataset(out)
-    assert ds.sizes["record"] == n1 + len(om2)
-    # the lower branch below the first fold (Ω ≈ 1.028) is single-valued in Ω
-    s = get_system("duffing")
-    br = frc(s, 0.01, (0.94, 1.02), n_mesh=32, observed="q")
-    om_c = np.asarray(br.data["omega"])
-    amp_c = np.asarray(br.data["observed_amplitude"])
-    order = np.argsort(om_c)
-    for p in first["points"] + second["points"]:
-        ref = np.interp(p["omega"], om_c[order], amp_c[order])
-        assert p["amplitude"] == pytest.approx(ref, rel=0.01)
+    assert resumed["resumed_from"] == n // 2 and len(resumed["points"]) == n
+    B = load_dataset(cut)
+    for v in ("forcing", "amplitude", "phase", "signals", "control"):
+        np.testing.assert_allclose(B[v].values, A[v].values, rtol=1e-12, atol=0)
+    before = cut.read_bytes()
+    other = [a if a != "1.05" else "1.06" for a in SCURVE_ARGS]
+    r, _ = invoke([*other, "--out", str(cut), "--resume"])
+    assert r.exit_code == 2
+    assert "another campaign" in r.stderr and "omega" in r.stderr
+    assert len(r.stderr.strip().splitlines()) == 1
+    assert cut.read_bytes() == before

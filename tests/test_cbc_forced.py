@@ -15,9 +15,8 @@ import warnings
 import numpy as np
 import pytest
 
-from bifid.cbc import VirtualRig
-from bifid.cbc._forced import ForcedCBCOptions, folds_of, frc_cbc, scurve_cbc
-from bifid.cbc._truth import correct_forced, forced_orbit_from_samples
+from bifid.cbc import ForcedCBCOptions, VirtualRig, folds_of, frc_cbc, scurve_cbc
+from bifid.continuation.truth import correct_forced, orbit_from_samples
 from bifid.errors import ConvergenceWarning
 from bifid.signal import max_abs
 from bifid.systems import get_system
@@ -29,19 +28,29 @@ FOLDS_CONTINUATION = (0.0215934, 0.0109005)
 def duffing_scurve():
     s = get_system("duffing")
     rig = VirtualRig(s, sample_rate=50.0, record_states=True)
-    opts = ForcedCBCOptions(signal="q", kp=0.5, kd=0.5, n_harmonics=3, settle_periods=6,
-                            measure_periods=2, ds=0.1, ds_max=0.15, stability=False)
+    opts = ForcedCBCOptions(
+        signal="q",
+        kp=0.5,
+        kd=0.5,
+        n_harmonics=3,
+        settle_periods=6,
+        measure_periods=2,
+        ds=0.1,
+        ds_max=0.15,
+        stability=False,
+    )
     pts, fails = scurve_cbc(rig, 1.05, (0.008, 0.026), opts)
     return s, pts, fails
 
 
 def test_scurve_goes_round_both_folds(duffing_scurve):
-    """Check the S-curve is followed from the lower to the upper branch with 2 folds."""
+    """Check the S-curve is followed from the lower to the upper branch with 2 folds,
+    from one end of the forcing range to the other."""
     _, pts, fails = duffing_scurve
     assert not fails
     amps = np.array([p.amplitude for p in pts])
     assert np.all(np.diff(amps) > 0)  # amplitude grows along an S-curve
-    assert pts[0].forcing < 0.011 and pts[-1].forcing > 0.026
+    assert pts[0].forcing == pytest.approx(0.008) and pts[-1].forcing == pytest.approx(0.026)
     folds = folds_of(pts)
     assert len(folds) == 2
     for f, ref in zip(folds, FOLDS_CONTINUATION, strict=True):
@@ -54,13 +63,17 @@ def test_points_are_responses_of_the_uncontrolled_system(duffing_scurve):
     """Check amplitudes within 1 % of the uncontrolled response at the same forcing.
 
     Each point's true states are Newton-corrected (forced collocation) at its own
-    (γ, Ω); the control is non-invasive, so the correction must barely move them.
+    (γ, Ω); the control is non-invasive, so the correction must barely move them. (A
+    point on a fold -- within 0.1 % of its γ -- is not checked: Newton at a fixed γ is
+    singular there.)
     """
     s, pts, _ = duffing_scurve
     worst = 0.0
     for p in pts:
+        if min(abs(p.forcing / f - 1.0) for f in FOLDS_CONTINUATION) < 1e-3:
+            continue
         m = p.measurement
-        V = forced_orbit_from_samples(m.extra["states"], m.phase, p.force_phase, n_mesh=32)
+        V = orbit_from_samples(m.extra["states"], m.phase - p.force_phase, m.sample_rate, n_mesh=32)
         Vc = correct_forced(s, p.omega, p.forcing, V, n_mesh=32)
         a_true = float(max_abs(Vc[:, 0]))
         worst = max(worst, abs(p.amplitude / a_true - 1.0))
@@ -71,7 +84,7 @@ def test_points_are_responses_of_the_uncontrolled_system(duffing_scurve):
 def test_force_update_matches_eq_3_6_with_exact_derivative():
     """Check one force update equals eq. 3.6 when the derivative comes from the state."""
     from bifid.cbc import FourierTarget
-    from bifid.cbc._forced import _measure
+    from bifid.cbc._forced_measure import measure
 
     s = get_system("duffing")
     rig = VirtualRig(s, sample_rate=100.0, derivative="state")
@@ -80,7 +93,7 @@ def test_force_update_matches_eq_3_6_with_exact_derivative():
     rig.set_forcing(0.01, Om, 0.0)
     pstar = np.array([0.0, 0.1, 0.0, 0.0, 0.02, 0.0, 0.0])
     rig.set_controller(opts.controller, FourierTarget(pstar))
-    r = _measure(rig, opts, Om, 30)
+    r = measure(rig, opts, Om, 30)
     d = pstar - r.p
     A_hat = opts.kp * d[1] + Om * opts.kd * d[q + 1]  # eq. 3.6, cos part of u
     B_hat = opts.kp * d[q + 1] - Om * opts.kd * d[1]  # sin part
@@ -131,8 +144,16 @@ def _noisy_run(sigma: float, gains: float, max_points: int, protocol, **opts):
     system, points, failures and the ConvergenceWarnings raised."""
     s = get_system("duffing")
     rig = VirtualRig(s, sample_rate=100.0, noise={"q": sigma}, seed=3, record_states=True)
-    o = ForcedCBCOptions(signal="q", kp=gains, kd=gains, n_harmonics=3, settle_periods=20,
-                         measure_periods=3, max_points=max_points, **opts)
+    o = ForcedCBCOptions(
+        signal="q",
+        kp=gains,
+        kd=gains,
+        n_harmonics=3,
+        settle_periods=20,
+        measure_periods=3,
+        max_points=max_points,
+        **opts,
+    )
     with warnings.catch_warnings(record=True) as caught:
         warnings.simplefilter("always")
         pts, fails = protocol(rig, o)
@@ -141,13 +162,14 @@ def _noisy_run(sigma: float, gains: float, max_points: int, protocol, **opts):
 
 def _noisy_duffing(gains: float, lo: float, max_points: int, **opts):
     """A duffing S-curve (Ω = 1.05) with σ = 1 % of its largest amplitude (0.63) on q."""
-    return _noisy_run(0.0063, gains, max_points,
-                      lambda rig, o: scurve_cbc(rig, 1.05, (lo, 0.03), o), **opts)
+    return _noisy_run(
+        0.0063, gains, max_points, lambda rig, o: scurve_cbc(rig, 1.05, (lo, 0.03), o), **opts
+    )
 
 
 def _amplitude_error(s, p) -> float:
     m = p.measurement
-    V = forced_orbit_from_samples(m.extra["states"], m.phase, p.force_phase, n_mesh=32)
+    V = orbit_from_samples(m.extra["states"], m.phase - p.force_phase, m.sample_rate, n_mesh=32)
     Vc = correct_forced(s, p.omega, p.forcing, V, n_mesh=32)
     return abs(p.amplitude / float(max_abs(Vc[:, 0])) - 1.0)
 
@@ -175,14 +197,14 @@ def test_noisy_scurve_points_are_responses_of_the_uncontrolled_system():
     """Check noisy S-curve points (1 % noise, low gains) within 1 % of the true responses.
 
     kp = kd = 0.1 (``defaults_for("duffing").noisy_options``), γ from 0.01 along the
-    lower branch to the upper fold (0.0216): every point's forcing update is verified
+    lower branch round the upper fold (0.0216): every point's forcing update is verified
     to 0.5 % of γ (3σ) and its amplitude is within 1 % of the uncontrolled response
     Newton-corrected at the recorded γ (points where the S-curve is steep -- next to the
     fold, within 2 % of its γ -- are excluded: there 0.5 % in γ is more than 1 % in A).
-    The run ends on the unstable middle branch.
+    The run ends on the unstable middle branch, past the fold.
     """
-    s, pts, fails, _ = _noisy_duffing(0.1, 0.01, 7)
-    assert not fails and len(pts) == 7
+    s, pts, fails, _ = _noisy_duffing(0.1, 0.01, 11, ds=0.1, ds_max=0.2)
+    assert not fails and len(pts) == 11
     assert all(np.diff([p.amplitude for p in pts]) > 0)
     checked = 0
     for p in pts:
@@ -190,15 +212,17 @@ def test_noisy_scurve_points_are_responses_of_the_uncontrolled_system():
         if min(abs(p.forcing / f - 1.0) for f in FOLDS_CONTINUATION) > 0.02:
             assert _amplitude_error(s, p) < 0.01
             checked += 1
-    assert checked >= 5
-    assert 0.32 < pts[-1].amplitude < 0.5  # middle branch (between the folds' amplitudes)
+    assert checked >= 7
+    # middle branch: between the folds' amplitudes (0.3115 and 0.518 by continuation)
+    assert 0.3115 < pts[-1].amplitude < 0.518 and pts[-1].forcing < pts[-2].forcing
 
 
 # ------------------------------------------------------------ FRC with measurement noise
 def _noisy_frc(gains: float, max_points: int, **opts):
     """A duffing FRC at γ = 0.01 from Ω = 0.95 up, σ = 1 % of its largest amplitude (0.48)."""
-    return _noisy_run(0.0048, gains, max_points,
-                      lambda rig, o: frc_cbc(rig, 0.01, (0.95, 1.1), o), **opts)
+    return _noisy_run(
+        0.0048, gains, max_points, lambda rig, o: frc_cbc(rig, 0.01, (0.95, 1.1), o), **opts
+    )
 
 
 def test_noisy_frc_points_are_responses_of_the_uncontrolled_system():

@@ -14,14 +14,21 @@ import warnings
 import numpy as np
 import pytest
 
-from bifid.cbc import VirtualRig, lco_campaign
-from bifid.cbc._ppcbc import PPCBCOptions, ppcbc_scan
+from bifid.cbc import PPCBCOptions, VirtualRig, ppcbc_campaign, ppcbc_scan
 from bifid.data import load_dataset
 from bifid.errors import ConvergenceWarning
 from bifid.systems import get_system
 
-OPTS = dict(x1="u1", x2="u2", kp=1.0, kd=0.0, n_harmonics=3, settle_periods=5.0,
-            measure_periods=2.0, watch_periods=10.0)
+OPTS = dict(
+    x1="u1",
+    x2="u2",
+    kp=1.0,
+    kd=0.0,
+    n_harmonics=3,
+    settle_periods=5.0,
+    measure_periods=2.0,
+    watch_periods=10.0,
+)
 
 
 def r_lco(mu: float, q5: float, a2: float = 1.0) -> tuple[float, ...]:
@@ -68,33 +75,50 @@ def test_subcritical_pair_with_noise(hopf):
 
 
 def test_campaign_continues_round_the_fold(tmp_path):
-    """Check lco_campaign (scan, then Newton-Broyden + arclength) through the fold.
+    """Check a continuation campaign (scan, then the measured zero problem on the
+    continuation driver) through the cycle fold.
 
     Starting on the unstable LCO at μ = -0.1 and moving to smaller μ, the q5 = 1 branch
     folds at μ = -1/4 and returns on the stable side; every point must lie on the
-    analytic curve r⁴ - r² - μ = 0 within 0.5 %, and the dataset written point by point
-    must hold exactly the returned points.
+    analytic curve r⁴ - r² - μ = 0 within 0.5 %, the fold located on the measured
+    points within 1 % of -1/4, and the dataset written point by point must hold the scan's
+    LCOs and every continuation point.
     """
     out = tmp_path / "hopf.nc"
-    data, pts, fails = lco_campaign(
-        "hopf", "mu", -0.1, overrides={"q5": 1.0}, amplitudes=[0.2, 0.35, 0.5], n_points=6,
-        ds=0.5, param_scale=0.1, n_harmonics=3, rig_options={"sample_rate": 100.0},
-        options={"stability": False, "settle_periods": 5.0, "measure_periods": 2.0},
-        out=out)
-    assert not fails
-    assert len(pts) == 6
-    mus = np.array([p.param for p in pts])
-    rs = np.array([p.amplitude["u1"] for p in pts])
+    r = ppcbc_campaign(
+        "hopf",
+        param="mu",
+        span=(-0.1, -0.3),
+        continuation=8,
+        overrides={"q5": 1.0},
+        amplitudes=[0.2, 0.35, 0.5],
+        ds=0.5,
+        param_scale=0.1,
+        rig_options={"sample_rate": 100.0},
+        out=out,
+        options={
+            "stability": False,
+            "settle_periods": 5.0,
+            "measure_periods": 2.0,
+            "n_harmonics": 3,
+        },
+    )
+    d = r.diagram.to_json()
+    assert d["complete"] and not r.failures
+    cont = [p for p in r.points if p.branch == "continuation"]
+    assert len(cont) == 8
+    mus = np.array([p.param for p in r.points])
+    rs = np.array([p.amplitude["u1"] for p in r.points])
     np.testing.assert_allclose(rs**4 - rs**2 - mus, 0.0, atol=5e-3 * np.max(rs**2))
     assert rs[0] == pytest.approx(r_lco(-0.1, 1.0)[0], rel=2e-3)  # the scan's first LCO
-    assert np.min(mus) < -0.2  # went towards the fold at -0.25 ...
-    assert rs[-1] > 1 / math.sqrt(2)  # ... and came back on the stable branch (r² > a2/2)
-    assert np.all(np.diff(rs) > 0)
+    assert min(p.param for p in cont) < -0.2  # went towards the fold at -0.25 ...
+    assert cont[-1].amplitude["u1"] > 1 / math.sqrt(2)  # ... and came back stable (r² > 1/2)
+    assert np.all(np.diff([p.amplitude["u1"] for p in cont]) > 0)
+    assert [f["param"] for f in d["cycle_folds"]] == [pytest.approx(-0.25, rel=0.01)]
     saved = load_dataset(out)
-    assert saved.attrs["bifid_kind"] == "lco" and saved.sizes["record"] == 6
+    assert saved.attrs["bifid_kind"] == "lco" and saved.sizes["record"] == len(r.points)
     np.testing.assert_allclose(saved["param"].values, mus)
-    np.testing.assert_allclose(data["param"].values, mus)
-    assert json.loads(saved.attrs["settings"])["protocol"] == "ppcbc-campaign"
+    assert json.loads(saved.attrs["settings"])["campaign"]["protocol"] == "ppcbc"
 
 
 def test_destabilising_controller_is_reported_not_recorded(hopf):

@@ -35,12 +35,12 @@ def test_hopf_gains_stabilise_the_unstable_lco(hopf_orbit):
     mu, fmax = controlled_floquet(s, PDController(0.0, 0.0, "u1", "u2"), target, V, 2 * np.pi, p)
     assert fmax == pytest.approx(math.exp(0.4 * math.pi), rel=1e-3)
     d = defaults_for("hopf")
-    mu, fmax = controlled_floquet(s, PDController(d.kp, d.kd, "u1", "u2"), target, V,
-                                  2 * np.pi, p)
+    mu, fmax = controlled_floquet(s, PDController(d.kp, d.kd, "u1", "u2"), target, V, 2 * np.pi, p)
     assert np.min(np.abs(mu - 1.0)) < 1e-6  # the trivial multiplier
     assert fmax == pytest.approx(math.exp(2 * math.pi * (0.2 - d.kp / 2)), rel=1e-3)
-    _, fmax_thesis = controlled_floquet(s, PDController(0.5, -0.5, "u1", "u2"), target, V,
-                                        2 * np.pi, p)
+    _, fmax_thesis = controlled_floquet(
+        s, PDController(0.5, -0.5, "u1", "u2"), target, V, 2 * np.pi, p
+    )
     assert fmax_thesis < 1.0
 
 
@@ -55,8 +55,15 @@ def test_switch_off_labels():
         t = EllipticTarget(r, 1.0)
         rig.set_controller(c, t)
         rig.run(40.0)
-        res, _ = switch_off_test(rig, "u1", r, 1.0, controller=c,
-                                 nudged_target=EllipticTarget(0.95 * r, 1.0), restore_target=t)
+        res, _ = switch_off_test(
+            rig,
+            "u1",
+            r,
+            1.0,
+            controller=c,
+            nudged_target=EllipticTarget(0.95 * r, 1.0),
+            restore_target=t,
+        )
         assert res.stable is expected
         assert (res.growth > 1.0) is (not expected)
 
@@ -71,12 +78,12 @@ def test_output_filter_enters_the_controlled_floquet_multipliers():
     tau = 2 * np.pi * np.arange(64) / 64
     V = np.stack([r * np.cos(tau), r * np.sin(tau)], axis=1)
     target = EllipticTarget(r, 1.0)
-    mu0, f0 = controlled_floquet(s, PDController(1.0, 0.0, "u1", "u2"), target, V,
-                                 2 * np.pi, p)
+    mu0, f0 = controlled_floquet(s, PDController(1.0, 0.0, "u1", "u2"), target, V, 2 * np.pi, p)
     errs = []
     for fc in (1.0, 10.0, 100.0):
-        mu, fmax = controlled_floquet(s, PDController(1.0, 0.0, "u1", "u2", fc), target, V,
-                                      2 * np.pi, p)
+        mu, fmax = controlled_floquet(
+            s, PDController(1.0, 0.0, "u1", "u2", fc), target, V, 2 * np.pi, p
+        )
         assert mu.shape == (3,) and mu0.shape == (2,)
         assert np.min(np.abs(mu - 1.0)) < 1e-6  # trivial multiplier kept
         assert np.min(np.abs(mu)) < 1e-6  # the filter's own mode, exp(-2π f_c 2π)

@@ -38,10 +38,12 @@ def test_fourier_target_eq_3_3():
     vec = jnp.asarray(t.vector())
     th, Om = 0.7, 2.0
     r1, r2 = FourierTarget.reference(vec, 0.0, 0.0, th, Om)
-    assert float(r1) == pytest.approx(0.2 + math.cos(th) + 0.1 * math.cos(2 * th)
-                                      - 0.5 * math.sin(2 * th))
-    assert float(r2) == pytest.approx(Om * (-math.sin(th) - 0.2 * math.sin(2 * th)
-                                            - 1.0 * math.cos(2 * th)))
+    assert float(r1) == pytest.approx(
+        0.2 + math.cos(th) + 0.1 * math.cos(2 * th) - 0.5 * math.sin(2 * th)
+    )
+    assert float(r2) == pytest.approx(
+        Om * (-math.sin(th) - 0.2 * math.sin(2 * th) - 1.0 * math.cos(2 * th))
+    )
 
 
 def test_elliptic_target_is_non_invasive_on_its_ellipse():
@@ -85,8 +87,9 @@ def test_polar_target_with_a_general_transform():
         for fn, arg in ((PolarTarget.reference, vec), (PolarTarget.fast_reference, aux)):
             r1, r2 = fn(arg, x[0], x[1], 0.0, 0.0)
             assert (float(r1), float(r2)) == pytest.approx(tuple(x), abs=1e-12)
-    _ph, r = t.polar(*(np.array([0.001, -0.02])[:, None] + np.asarray(T) @ np.array(
-        [[1.0, 0.0], [0.0, 1.0]])))
+    _ph, r = t.polar(
+        *(np.array([0.001, -0.02])[:, None] + np.asarray(T) @ np.array([[1.0, 0.0], [0.0, 1.0]]))
+    )
     np.testing.assert_allclose(r, 1.0)
     with pytest.raises(BifidInputError, match="invertible"):
         PolarTarget([1.0], transform=((1.0, 2.0), (2.0, 4.0)))
@@ -144,6 +147,9 @@ def test_polar_projection_eq_3_24():
     c = polar_project(phi, r, 6)
     g = np.linspace(-np.pi, np.pi, 200001)[:-1]
     rg = 0.3 * np.cos(g) + np.sqrt(1 - (0.3 * np.sin(g)) ** 2)
-    ref = [rg.mean()] + [2 * np.mean(rg * np.cos(k * g)) for k in range(1, 7)] + [
-        2 * np.mean(rg * np.sin(k * g)) for k in range(1, 7)]
+    ref = (
+        [rg.mean()]
+        + [2 * np.mean(rg * np.cos(k * g)) for k in range(1, 7)]
+        + [2 * np.mean(rg * np.sin(k * g)) for k in range(1, 7)]
+    )
     np.testing.assert_allclose(c, ref, atol=2e-4)

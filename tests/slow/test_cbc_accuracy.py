@@ -14,30 +14,34 @@ import warnings
 import numpy as np
 import pytest
 
-from bifid.cbc import FourierTarget, PDController, VirtualRig
-from bifid.cbc._defaults import defaults_for
-from bifid.cbc._forced import ForcedCBCOptions, folds_of, frc_cbc, scurve_cbc
-from bifid.cbc._ppcbc import ppcbc_continuation, ppcbc_sweep
-from bifid.cbc._stability import controlled_floquet, orbit_polar_target
-from bifid.cbc._truth import (
+from bifid.cbc import (
+    ForcedCBCOptions,
+    FourierTarget,
+    PDController,
+    VirtualRig,
+    controlled_floquet,
+    defaults_for,
+    folds_of,
+    forced_campaign,
+    frc_cbc,
+    orbit_polar_target,
+    ppcbc_campaign,
+    scurve_cbc,
+)
+from bifid.continuation import floquet_multipliers
+from bifid.continuation.truth import (
     centred_amplitudes,
     correct_forced,
     correct_orbit,
-    forced_orbit_from_samples,
     orbit_from_samples,
 )
-from bifid.continuation import floquet_multipliers
 from bifid.errors import ConvergenceError
 from bifid.signal import fourier_project, max_abs
 from bifid.systems import get_system
 
 pytestmark = pytest.mark.slow
 
-U_VALUES = (15.0, 15.5, 16.0, 16.5, 17.0, 17.5)
-# ends just above the stable LCO at 17 m/s (30.5 mm); coarser grids (3 mm) or a higher top
-# (34 mm) make the rig trip there on targets the controller cannot hold
-GRID = np.linspace(0.004, 0.032, 15)
-GRID_175 = np.linspace(0.004, 0.012, 5)
+U_VALUES = (15.0, 15.5, 16.0, 16.5, 17.0, 17.5, 17.9)
 
 
 def _truth(s, pt):
@@ -45,8 +49,7 @@ def _truth(s, pt):
     V = orbit_from_samples(m.extra["states"], pt.frequency, m.sample_rate)
     Vc, T = correct_orbit(s, "U", pt.param, V, 2 * np.pi / pt.frequency)
     p = np.asarray(s.param_vector(U=pt.param))
-    _, stable, _ = floquet_multipliers(s.rhs, Vc[None], np.array([T]), p[None],
-                                          autonomous=True)
+    _, stable, _ = floquet_multipliers(s.rhs, Vc[None], np.array([T]), p[None], autonomous=True)
     return Vc, T, centred_amplitudes(Vc), bool(stable[0])
 
 
@@ -57,15 +60,16 @@ def _sweep(noise):
     opts = d.ppcbc_options(measure_periods=8.0 if noise else 4.0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        # both LCOs at each U: the scan stops after the second (the targets beyond the
-        # stable LCO are invasive and the rig may trip on them, a reported failure)
-        pts, fails = ppcbc_sweep(rig, "U", U_VALUES[:-1], GRID, opts, omega_guess=15.0,
-                                 max_points=2)
-        # 17.5 m/s: the unstable LCO only (issue 3 §5); above ~25 mm the scan's
-        # intermediate (invasive) targets are not held there and the rig trips
-        more, fails2 = ppcbc_sweep(rig, "U", U_VALUES[-1:], GRID_175, opts,
-                                   omega_guess=pts[-1].frequency if pts else 15.0)
-    return s, pts + more, fails + fails2, opts
+        # both LCOs at every U, the defaults of the system only
+        r = ppcbc_campaign(
+            s,
+            param="U",
+            values=U_VALUES,
+            rig=rig,
+            seed=5,
+            options={"measure_periods": opts.measure_periods},
+        )
+    return s, r.points, r.failures, opts
 
 
 @pytest.fixture(scope="module")
@@ -83,8 +87,8 @@ def _check_diagram(sweep, tol, noisy=False):
     s, pts, fails, _opts = sweep
     assert not fails
     found = sorted((p.param, p.stable) for p in pts)
-    expected = sorted([(u, False) for u in U_VALUES] + [(u, True) for u in U_VALUES[:-1]])
-    assert found == expected  # both LCOs at 15-17 m/s, the unstable one at 17.5, labels right
+    expected = sorted([(u, False) for u in U_VALUES] + [(u, True) for u in U_VALUES])
+    assert found == expected  # both LCOs at every U, labels right
     for pt in pts:
         _Vc, _, a, stable = _truth(s, pt)
         assert pt.stable is stable
@@ -101,13 +105,13 @@ def _check_diagram(sweep, tol, noisy=False):
 
 
 def test_flutter_ppcbc_noise_free(clean):
-    """Check 11 LCOs (§5) within 1 % of the uncontrolled orbits, labels, invasiveness."""
-    _check_diagram(clean, 0.01)
+    """Check the 14 LCOs within 0.5 % of the uncontrolled orbits, labels, invasiveness."""
+    _check_diagram(clean, 0.005)
 
 
 def test_flutter_ppcbc_with_noise(noisy):
-    """Check the same with measurement noise of 1 % of the heave amplitude, within 3 %."""
-    _check_diagram(noisy, 0.03, noisy=True)
+    """Check the same with measurement noise of 1 % of the smallest LCO, within 0.5 %."""
+    _check_diagram(noisy, 0.005, noisy=True)
 
 
 def test_flutter_controlled_floquet(clean):
@@ -117,8 +121,9 @@ def test_flutter_controlled_floquet(clean):
     for pt in pts:
         Vc, T, _, stable = _truth(s, pt)
         p = np.asarray(s.param_vector(U=pt.param))
-        tgt = orbit_polar_target(Vc, s, opts.x1, opts.x2, 10, transform=pt.target.transform,
-                                 origin=pt.target.origin, p=p)
+        tgt = orbit_polar_target(
+            Vc, s, opts.x1, opts.x2, 10, transform=pt.target.transform, origin=pt.target.origin, p=p
+        )
         mu, fmax = controlled_floquet(s, opts.controller, tgt, Vc, T, p)
         assert np.min(np.abs(mu - 1.0)) < 1e-4  # the trivial one (3.6e-5 measured)
         assert fmax < 0.6
@@ -127,17 +132,25 @@ def test_flutter_controlled_floquet(clean):
 
 
 def test_flutter_polar_continuation():
-    """Check Example 3.3: Newton-Broyden + arclength in U along the unstable branch."""
+    """Check Example 3.3: the measured PP-CBC problem continued in U along the unstable
+    branch from the LCO at 17 m/s (every point within 1 % of the uncontrolled orbit)."""
     s = get_system("flutter")
     d = defaults_for("flutter")
     rig = d.rig(s, {"U": 17.0}, record_states=True)
-    opts = d.ppcbc_options(stability=False)
-    from bifid.cbc._ppcbc import ppcbc_scan
-
-    start, _ = ppcbc_scan(rig, "U", 17.0, np.linspace(0.006, 0.014, 5), opts, omega_guess=15.0)
-    assert len(start) == 1
-    pts, fails = ppcbc_continuation(rig, "U", start[0], opts, ds=0.5, n_points=5, direction=-1)
-    assert not fails and len(pts) == 5
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r = ppcbc_campaign(
+            s,
+            param="U",
+            span=(17.0, 14.0),
+            continuation=5,
+            rig=rig,
+            amplitudes=np.linspace(0.006, 0.014, 5),
+            options={"stability": False},
+        )
+    assert not r.failures
+    pts = [p for p in r.points if p.branch == "continuation"]
+    assert len(pts) == 5
     for pt in pts:
         _, _, a, stable = _truth(s, pt)
         assert pt.amplitude["h"] == pytest.approx(a[0], rel=0.01)
@@ -169,8 +182,13 @@ def _forced_against_continuation(system, omega, frange, opts, folds_ref_n=2):
     rig = VirtualRig(s, sample_rate=100.0, record_states=True)
     pts, fails = scurve_cbc(rig, omega, frange, opts)
     assert not fails
-    br = scurve(s, omega, (frange[0] * 0.5, frange[1] * 1.2), n_mesh=32,
-                options=ContinuationOptions(ds=0.01, ds_min=1e-9, ds_max=0.2, max_steps=3000))
+    br = scurve(
+        s,
+        omega,
+        (frange[0] * 0.5, frange[1] * 1.2),
+        n_mesh=32,
+        options=ContinuationOptions(ds=0.01, ds_min=1e-9, ds_max=0.2, max_steps=3000),
+    )
     ref = sorted(sp.param for sp in br.special("fold"))
     got = sorted(f["forcing"] for f in folds_of(pts))
     assert len(ref) == folds_ref_n and len(got) == folds_ref_n
@@ -181,15 +199,16 @@ def _forced_against_continuation(system, omega, frange, opts, folds_ref_n=2):
     n_fallback = 0
     for p in pts:
         m = p.measurement
-        V = forced_orbit_from_samples(m.extra["states"], m.phase, p.force_phase, n_mesh=32)
+        V = orbit_from_samples(m.extra["states"], m.phase - p.force_phase, m.sample_rate, n_mesh=32)
         try:
             Vc = correct_forced(s, p.omega, p.forcing, V, n_mesh=32)
         except ConvergenceError:
             # at a fold Newton at fixed F is singular: the nearest point of the
             # continuation branch (normalised (F, A) plane) must then agree within 1 %
             n_fallback += 1
-            k = np.argmin(np.hypot((f_br - p.forcing) / p.forcing, (a_br - p.amplitude)
-                                   / p.amplitude))
+            k = np.argmin(
+                np.hypot((f_br - p.forcing) / p.forcing, (a_br - p.amplitude) / p.amplitude)
+            )
             assert p.amplitude == pytest.approx(a_br[k], rel=0.01)
             assert p.forcing == pytest.approx(f_br[k], rel=0.01)
             continue
@@ -202,8 +221,15 @@ def _forced_against_continuation(system, omega, frange, opts, folds_ref_n=2):
 def test_duffing_scurve_full():
     """Check the duffing S-curve at Ω = 1.05 (folds near F = 0.011, 0.022), stability labels."""
     d = defaults_for("duffing")
-    opts = ForcedCBCOptions(signal="q", kp=d.kp, kd=d.kd, n_harmonics=5, settle_periods=8,
-                            measure_periods=3, stability=True)
+    opts = ForcedCBCOptions(
+        signal="q",
+        kp=d.kp,
+        kd=d.kd,
+        n_harmonics=5,
+        settle_periods=8,
+        measure_periods=3,
+        stability=True,
+    )
     pts, _br = _forced_against_continuation("duffing", 1.05, (0.002, 0.03), opts)
     folds = folds_of(pts)
     lo, hi = folds[0]["amplitude"], folds[1]["amplitude"]
@@ -219,8 +245,9 @@ def test_duffing_scurve_full():
 def test_shaw_pierre_scurve_two_folds():
     """Check the shaw_pierre S-curve at Ω = 1.005, which has two folds (F ≈ 0.0128, 0.0090)."""
     d = defaults_for("shaw_pierre")
-    opts = ForcedCBCOptions(signal="x1", kp=d.kp, kd=d.kd, n_harmonics=5, settle_periods=10,
-                            measure_periods=3)
+    opts = ForcedCBCOptions(
+        signal="x1", kp=d.kp, kd=d.kd, n_harmonics=5, settle_periods=10, measure_periods=3
+    )
     _forced_against_continuation("shaw_pierre", 1.005, (0.001, 0.02), opts)
 
 
@@ -230,8 +257,16 @@ def test_duffing_frc_bistable():
 
     s = get_system("duffing")
     rig = VirtualRig(s, sample_rate=50.0)
-    opts = ForcedCBCOptions(signal="q", kp=0.5, kd=0.5, n_harmonics=3, settle_periods=6,
-                            measure_periods=2, ds=0.1, ds_max=0.2)
+    opts = ForcedCBCOptions(
+        signal="q",
+        kp=0.5,
+        kd=0.5,
+        n_harmonics=3,
+        settle_periods=6,
+        measure_periods=2,
+        ds=0.1,
+        ds_max=0.2,
+    )
     pts, fails = frc_cbc(rig, 0.01, (0.9, 1.3), opts)
     assert not fails
     br = frc(s, 0.01, (0.85, 1.35), n_mesh=32)
@@ -252,12 +287,20 @@ def test_duffing_gains_stabilise_the_middle_branch():
     c = fourier_project(V[:, 0], tau, 5)
     c[0] *= 2.0
     target = FourierTarget(c)
-    _, f_open = controlled_floquet(s, PDController(0.0, 0.0, "q", "q_dot"), target, V,
-                                   2 * np.pi / Om, p, forcing=(F, Om, 0.0))
+    _, f_open = controlled_floquet(
+        s, PDController(0.0, 0.0, "q", "q_dot"), target, V, 2 * np.pi / Om, p, forcing=(F, Om, 0.0)
+    )
     assert f_open > 1.0
     d = defaults_for("duffing")
-    _, f_ctrl = controlled_floquet(s, PDController(d.kp, d.kd, "q", "q_dot"), target, V,
-                                   2 * np.pi / Om, p, forcing=(F, Om, 0.0))
+    _, f_ctrl = controlled_floquet(
+        s,
+        PDController(d.kp, d.kd, "q", "q_dot"),
+        target,
+        V,
+        2 * np.pi / Om,
+        p,
+        forcing=(F, Om, 0.0),
+    )
     assert f_ctrl < 0.5
 
 
@@ -266,18 +309,25 @@ NOISY_SCURVES = {
     # system: (Ω, forcing range) -- noisy runs start where the forcing update can be
     # verified to 0.5 % of γ within max_measure_periods (its noise does not shrink with γ)
     "duffing": (1.05, (0.005, 0.03)),
-    "shaw_pierre": (1.005, (0.006, 0.02)),
+    "shaw_pierre": (1.005, (0.0075, 0.02)),
 }
 
 
 def _dense_scurve(s, omega, frange):
     from bifid.continuation import ContinuationOptions, scurve
 
-    br = scurve(s, omega, (frange[0] * 0.5, frange[1] * 1.2), n_mesh=32,
-                options=ContinuationOptions(ds=0.005, ds_min=1e-9, ds_max=0.01,
-                                            max_steps=20000))
-    return (np.asarray(br.data["forcing"]), np.asarray(br.data["observed_amplitude"]),
-            sorted(sp.param for sp in br.special("fold")))
+    br = scurve(
+        s,
+        omega,
+        (frange[0] * 0.5, frange[1] * 1.2),
+        n_mesh=32,
+        options=ContinuationOptions(ds=0.005, ds_min=1e-9, ds_max=0.01, max_steps=20000),
+    )
+    return (
+        np.asarray(br.data["forcing"]),
+        np.asarray(br.data["observed_amplitude"]),
+        sorted(sp.param for sp in br.special("fold")),
+    )
 
 
 @pytest.mark.slow
@@ -286,7 +336,7 @@ def _dense_scurve(s, omega, frange):
 def test_scurve_with_measurement_noise(system, fraction):
     """Check §5's S-curve limits with noise σ = 0.3 % / 1 % of the largest response amplitude.
 
-    ``scurve_campaign`` (noisy gains of ``defaults_for``). Against a dense continuation
+    ``forced_campaign`` (noisy gains of ``defaults_for``). Against a dense continuation
     curve: both folds within 2 % in γ; every point within 1 % of the curve (normalised
     distance ``min √((Δγ/γ)² + (ΔA/A)²)``); and, where the curve is not steep
     (``|dlnA/dlnγ| <= 2``, i.e. away from the folds, where the amplitude at a fixed γ is
@@ -294,8 +344,6 @@ def test_scurve_with_measurement_noise(system, fraction):
     Newton-corrected at the point's own γ. No failure, >= 5 points on the unstable middle
     branch, every point's forcing update verified to 0.5 % of γ.
     """
-    from bifid.cbc import scurve_campaign
-
     omega, frange = NOISY_SCURVES[system]
     s = get_system(system)
     sig = defaults_for(system).signal
@@ -303,9 +351,16 @@ def test_scurve_with_measurement_noise(system, fraction):
     sigma = fraction * float(a_br[f_br <= frange[1]].max())
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        _, curves, fails = scurve_campaign(system, omega, frange, noise={sig: sigma}, seed=1,
-                                           rig_options={"record_states": True})
-    pts = curves[0]
+        r = forced_campaign(
+            system,
+            "scurve",
+            omega=omega,
+            span=frange,
+            noise={sig: sigma},
+            seed=1,
+            rig_options={"record_states": True},
+        )
+    pts, fails = r.points, r.failures
     assert not fails
     got = folds_of(pts)
     assert len(got) == 2 and len(folds_ref) == 2
@@ -321,15 +376,17 @@ def test_scurve_with_measurement_noise(system, fraction):
         assert p.forcing_floor <= 0.005
         d = np.min(np.hypot((fd - p.forcing) / p.forcing, (ad - p.amplitude) / p.amplitude))
         assert d < 0.01, (p.forcing, p.amplitude, d)
-        k = int(np.argmin(np.hypot((f_br - p.forcing) / p.forcing,
-                                   (a_br - p.amplitude) / p.amplitude)))
+        k = int(
+            np.argmin(np.hypot((f_br - p.forcing) / p.forcing, (a_br - p.amplitude) / p.amplitude))
+        )
         k = min(max(k, 1), len(f_br) - 2)
-        slope = ((np.log(a_br[k + 1]) - np.log(a_br[k - 1]))
-                 / (np.log(f_br[k + 1]) - np.log(f_br[k - 1])))
+        slope = (np.log(a_br[k + 1]) - np.log(a_br[k - 1])) / (
+            np.log(f_br[k + 1]) - np.log(f_br[k - 1])
+        )
         if abs(slope) > 2.0:
             continue
         m = p.measurement
-        V = forced_orbit_from_samples(m.extra["states"], m.phase, p.force_phase, n_mesh=32)
+        V = orbit_from_samples(m.extra["states"], m.phase - p.force_phase, m.sample_rate, n_mesh=32)
         Vc = correct_forced(s, p.omega, p.forcing, V, n_mesh=32)
         assert p.amplitude == pytest.approx(float(max_abs(Vc[:, obs])), rel=0.01)
         n_checked += 1
@@ -348,10 +405,18 @@ def _dense_frc(s, forcing, omega_range):
     from bifid.continuation import ContinuationOptions, frc
 
     w0, w1 = omega_range
-    br = frc(s, forcing, (w0 - 0.02, w1 + 0.02), n_mesh=32,
-             options=ContinuationOptions(ds=0.005, ds_min=1e-9, ds_max=0.01, max_steps=20000))
-    return (np.asarray(br.params), np.asarray(br.data["observed_amplitude"]),
-            sorted(sp.param for sp in br.special("fold")))
+    br = frc(
+        s,
+        forcing,
+        (w0 - 0.02, w1 + 0.02),
+        n_mesh=32,
+        options=ContinuationOptions(ds=0.005, ds_min=1e-9, ds_max=0.01, max_steps=20000),
+    )
+    return (
+        np.asarray(br.params),
+        np.asarray(br.data["observed_amplitude"]),
+        sorted(sp.param for sp in br.special("fold")),
+    )
 
 
 def _gamma_sensitivity(s, p, Vc, obs, rel=2e-3):
@@ -359,8 +424,9 @@ def _gamma_sensitivity(s, p, Vc, obs, rel=2e-3):
     a = []
     for f in (1.0 + rel, 1.0 - rel):
         try:
-            a.append(float(max_abs(correct_forced(s, p.omega, p.forcing * f, Vc,
-                                                  n_mesh=32)[:, obs])))
+            a.append(
+                float(max_abs(correct_forced(s, p.omega, p.forcing * f, Vc, n_mesh=32)[:, obs]))
+            )
         except ConvergenceError:
             return np.inf
     return (np.log(a[0]) - np.log(a[1])) / (np.log(1.0 + rel) - np.log(1.0 - rel))
@@ -390,11 +456,19 @@ def test_frc_with_measurement_noise(system, fraction):
     inside = (w_br >= om_range[0]) & (w_br <= om_range[1])
     sigma = fraction * float(a_br[inside].max())
     rig = d.rig(s, noise={d.signal: sigma}, seed=1, record_states=True)
-    opts = ForcedCBCOptions(**{**dict(signal=d.signal, kp=d.kp, kd=d.kd,
-                                      n_harmonics=d.n_harmonics,
-                                      settle_periods=d.settle_periods,
-                                      measure_periods=d.measure_periods),
-                               **d.noisy_options})
+    opts = ForcedCBCOptions(
+        **{
+            **dict(
+                signal=d.signal,
+                kp=d.kp,
+                kd=d.kd,
+                n_harmonics=d.n_harmonics,
+                settle_periods=d.settle_periods,
+                measure_periods=d.measure_periods,
+            ),
+            **d.noisy_options,
+        }
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         pts, fails = frc_cbc(rig, forcing, om_range, opts)
@@ -415,7 +489,7 @@ def test_frc_with_measurement_noise(system, fraction):
         dist = np.min(np.hypot((wd - p.omega) / ws, (ad - p.amplitude) / as_))
         assert dist < 0.01, (p.omega, p.amplitude, dist)
         m = p.measurement
-        V = forced_orbit_from_samples(m.extra["states"], m.phase, p.force_phase, n_mesh=32)
+        V = orbit_from_samples(m.extra["states"], m.phase - p.force_phase, m.sample_rate, n_mesh=32)
         try:
             Vc = correct_forced(s, p.omega, p.forcing, V, n_mesh=32)
         except ConvergenceError:  # at a fold Newton at fixed (γ, Ω) is singular

@@ -1,20 +1,30 @@
 """Control-based continuation (CBC) on rigs, thesis chapter 3 (user guide: ``docs/cbc.md``).
 
 - Rigs: :class:`AbstractRig` (what an experiment offers CBC), :class:`VirtualRig` (a System
-  simulated as one: sampled controller, zero-order hold, noise, saturation), and the
-  :class:`Measurement` a run returns.
+  simulated as one: sampled controller, zero-order hold, noise, saturation, safety
+  envelope), and the :class:`Measurement` a run returns.
 - Controllers and targets: :class:`PDController`, :class:`FourierTarget` (eq. 3.3),
   :class:`EllipticTarget` (eqs. 3.13, 3.28), :class:`PolarTarget` (eqs. 3.20-3.22).
-- Protocols: :func:`scurve_cbc` and :func:`frc_cbc` (forced systems, §3.2),
-  :func:`ppcbc_scan`, :func:`ppcbc_sweep` and :func:`ppcbc_continuation` (self-excited
-  systems, §3.3), with their options and point types.
-- Campaigns (rig + protocol + dataset in one call, as ``bifid demo`` runs them):
-  :func:`lco_campaign` (PP-CBC scan + continuation) and :func:`scurve_campaign`.
+- Measured zero problems (:class:`MeasuredProblem`): :class:`PPCBCProblem` (self-excited
+  systems, §3.3) and :class:`ForcedProblem` (S-curves and FRCs, §3.2), solved by the
+  :class:`BroydenCorrector` on the continuation driver of :mod:`bifid.continuation`;
+  :func:`ppcbc_scan`, the amplitude scan at one parameter value (§3.3.3.2).
+- Campaigns: :func:`run_campaign` (the one runner: point by point, resumable, retries,
+  failures recorded), with :func:`ppcbc_campaign` and :func:`forced_campaign` building
+  the rig and options from the system (:func:`defaults_for`); results are a
+  :class:`~bifid.continuation.Diagram` and a :mod:`bifid.data` dataset.
 - Stability: :func:`switch_off_test` (measured, Fig. 3.18) and :func:`controlled_floquet`
   (Floquet multipliers of the controlled system, Fig. 3.9).
 """
 
-from bifid.cbc._campaign import lco_campaign, scurve_campaign
+from bifid.cbc._campaign import CampaignResult, CampaignSpec
+from bifid.cbc._campaigns import (
+    forced_campaign,
+    frc_cbc,
+    noise_levels,
+    ppcbc_campaign,
+    scurve_cbc,
+)
 from bifid.cbc._controllers import (
     AbstractTarget,
     EllipticTarget,
@@ -23,23 +33,19 @@ from bifid.cbc._controllers import (
     PolarTarget,
 )
 from bifid.cbc._defaults import CBCDefaults, defaults_for
-from bifid.cbc._forced import (
-    ForcedCBCOptions,
-    ForcedFailure,
-    ForcedPoint,
-    folds_of,
-    frc_cbc,
-    scurve_cbc,
+from bifid.cbc._forced import ForcedProblem
+from bifid.cbc._forced_measure import ForcedCBCOptions, ForcedPoint, folds_of
+from bifid.cbc._measured import (
+    BroydenCorrector,
+    Evaluation,
+    Failure,
+    MeasuredProblem,
+    RigTripped,
 )
-from bifid.cbc._ppcbc import (
-    LCOPoint,
-    PPCBCFailure,
-    PPCBCOptions,
-    ppcbc_continuation,
-    ppcbc_scan,
-    ppcbc_sweep,
-)
+from bifid.cbc._ppcbc import LCOPoint, PPCBCOptions, PPCBCProblem
+from bifid.cbc._ppcbc_scan import ppcbc_scan
 from bifid.cbc._rig import AbstractRig, Measurement
+from bifid.cbc._runner import run_campaign
 from bifid.cbc._stability import (
     StabilityResult,
     controlled_floquet,
@@ -51,30 +57,37 @@ from bifid.cbc._virtual import VirtualRig
 __all__ = [
     "AbstractRig",
     "AbstractTarget",
+    "BroydenCorrector",
     "CBCDefaults",
+    "CampaignResult",
+    "CampaignSpec",
     "EllipticTarget",
+    "Evaluation",
+    "Failure",
     "ForcedCBCOptions",
-    "ForcedFailure",
     "ForcedPoint",
+    "ForcedProblem",
     "FourierTarget",
     "LCOPoint",
+    "MeasuredProblem",
     "Measurement",
     "PDController",
-    "PPCBCFailure",
     "PPCBCOptions",
+    "PPCBCProblem",
     "PolarTarget",
+    "RigTripped",
     "StabilityResult",
     "VirtualRig",
     "controlled_floquet",
     "defaults_for",
     "folds_of",
+    "forced_campaign",
     "frc_cbc",
-    "lco_campaign",
+    "noise_levels",
     "orbit_polar_target",
-    "ppcbc_continuation",
+    "ppcbc_campaign",
     "ppcbc_scan",
-    "ppcbc_sweep",
-    "scurve_campaign",
+    "run_campaign",
     "scurve_cbc",
     "switch_off_test",
 ]

@@ -116,9 +116,9 @@ class AbstractTarget(abc.ABC):
 
     @staticmethod
     @abc.abstractmethod
-    def reference(vec: Array, x1: Array, x2: Array, theta: Array, omega: Array) -> tuple[
-        Array, Array
-    ]:
+    def reference(
+        vec: Array, x1: Array, x2: Array, theta: Array, omega: Array
+    ) -> tuple[Array, Array]:
         """``(x1*, x2*)`` for measured ``x1, x2``, forcing phase ``θ`` and frequency ``Ω``."""
 
     @staticmethod
@@ -127,8 +127,9 @@ class AbstractTarget(abc.ABC):
         return vec
 
     @classmethod
-    def fast_reference(cls, aux, x1: Array, x2: Array, theta: Array, omega: Array
-                       ) -> tuple[Array, Array]:
+    def fast_reference(
+        cls, aux, x1: Array, x2: Array, theta: Array, omega: Array
+    ) -> tuple[Array, Array]:
         """:meth:`reference` from :meth:`compile`'s output, as evaluated in the rig loop."""
         return cls.reference(aux, x1, x2, theta, omega)
 
@@ -230,8 +231,9 @@ class EllipticTarget(AbstractTarget):
 
     def phase(self, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
         """The angle ``φ`` of eq. 3.13 for measured samples."""
-        return np.arctan2((np.asarray(x2) - self.offset[1]) / self.omega,
-                          np.asarray(x1) - self.offset[0])
+        return np.arctan2(
+            (np.asarray(x2) - self.offset[1]) / self.omega, np.asarray(x1) - self.offset[0]
+        )
 
 
 @dataclass(frozen=True, eq=False)
@@ -349,8 +351,12 @@ class PolarTarget(AbstractTarget):
 
     def with_coefficients(self, coefficients: np.ndarray) -> PolarTarget:
         """Same coordinates (transform, origin), new coefficients."""
-        return PolarTarget(coefficients=coefficients, scale=self.scale, origin=self.origin,
-                           transform=self.transform)
+        return PolarTarget(
+            coefficients=coefficients,
+            scale=self.scale,
+            origin=self.origin,
+            transform=self.transform,
+        )
 
     def polar(self, x1: np.ndarray, x2: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """``(φ, r)`` of measured samples in the target's coordinates ``ξ``."""
@@ -413,8 +419,13 @@ class PDController:
                 raise BifidInputError(f"{name} must name a rig signal, got {v!r}.")
 
     def to_json(self) -> dict:
-        return {"kp": self.kp, "kd": self.kd, "x1": self.x1, "x2": self.x2,
-                "filter_hz": self.filter_hz}
+        return {
+            "kp": self.kp,
+            "kd": self.kd,
+            "x1": self.x1,
+            "x2": self.x2,
+            "filter_hz": self.filter_hz,
+        }
 
     def filter_coefficient(self, sample_rate: float) -> float:
         """``a`` of the discrete output filter at ``sample_rate`` (1: no filter)."""
@@ -435,9 +446,17 @@ def target_to_json(target: AbstractTarget | None) -> dict | None:
     if isinstance(target, FourierTarget):
         return {"kind": target.kind, "coefficients": target.coefficients.tolist()}
     if isinstance(target, EllipticTarget):
-        return {"kind": target.kind, "amplitude": target.amplitude, "omega": target.omega,
-                "offset": list(target.offset)}
+        return {
+            "kind": target.kind,
+            "amplitude": target.amplitude,
+            "omega": target.omega,
+            "offset": list(target.offset),
+        }
     if isinstance(target, PolarTarget):
-        return {"kind": target.kind, "coefficients": target.coefficients.tolist(),
-                "transform": target.matrix.tolist(), "origin": list(target.origin)}
+        return {
+            "kind": target.kind,
+            "coefficients": target.coefficients.tolist(),
+            "transform": target.matrix.tolist(),
+            "origin": list(target.origin),
+        }
     return {"kind": getattr(target, "kind", type(target).__name__)}

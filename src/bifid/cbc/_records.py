@@ -1,60 +1,44 @@
-"""Converged CBC points as dataset records (:mod:`bifid.data`), and back for ``--resume``."""
+"""Converged CBC points as dataset records (:mod:`bifid.data`).
+
+Besides the signals, a record keeps per point the centred amplitudes and offsets
+(``amp_<signal>``, ``offset_<signal>``), the quality of the measurement (invasiveness,
+residual, iterations, stability growth) and, as JSON strings, the converged target
+(``target``, see :func:`target_from_json`) and for forced points the response's Fourier
+coefficients (``response``, eq. 3.4 ordering).
+"""
 
 from __future__ import annotations
 
+import json
 import math
 from typing import Any
 
 import numpy as np
 
-from bifid.cbc._controllers import EllipticTarget, FourierTarget, PolarTarget
-from bifid.cbc._forced import ForcedPoint
+from bifid.cbc._controllers import EllipticTarget, FourierTarget, PolarTarget, target_to_json
+from bifid.cbc._forced_measure import ForcedPoint
 from bifid.cbc._ppcbc import LCOPoint
 
-__all__ = ["forced_record", "lco_record", "target_from_extra"]
+__all__ = ["forced_record", "lco_record", "target_from_json"]
 
 
-def _target_extra(target: Any) -> dict[str, Any]:
-    out: dict[str, Any] = {}
-    if isinstance(target, PolarTarget):
-        out["target_kind"] = "polar"
-        T = target.matrix
-        out["target_T11"], out["target_T12"] = float(T[0, 0]), float(T[0, 1])
-        out["target_T21"], out["target_T22"] = float(T[1, 0]), float(T[1, 1])
-        out["target_origin1"], out["target_origin2"] = target.origin
-        for i, c in enumerate(target.coefficients):
-            out[f"target_c{i}"] = float(c)
-    elif isinstance(target, EllipticTarget):
-        out["target_kind"] = "elliptic"
-        out["target_amplitude"] = target.amplitude
-        out["target_omega"] = target.omega
-        out["target_origin1"], out["target_origin2"] = target.offset
-    elif isinstance(target, FourierTarget):
-        out["target_kind"] = "fourier"
-        for i, c in enumerate(target.coefficients):
-            out[f"target_c{i}"] = float(c)
-    return out
-
-
-def target_from_extra(extra: dict[str, Any]) -> Any:
-    """Rebuild a target saved by :func:`lco_record` / :func:`forced_record` (or None)."""
-    kind = extra.get("target_kind")
-    coef = []
-    i = 0
-    while f"target_c{i}" in extra:
-        coef.append(float(extra[f"target_c{i}"]))
-        i += 1
-    if kind == "polar" and coef:
-        T = ((float(extra["target_T11"]), float(extra["target_T12"])),
-             (float(extra["target_T21"]), float(extra["target_T22"])))
-        return PolarTarget(np.array(coef), transform=T,
-                           origin=(float(extra["target_origin1"]),
-                                   float(extra["target_origin2"])))
-    if kind == "elliptic":
-        return EllipticTarget(float(extra["target_amplitude"]), float(extra["target_omega"]),
-                              (float(extra["target_origin1"]), float(extra["target_origin2"])))
-    if kind == "fourier" and coef:
-        return FourierTarget(np.array(coef))
+def target_from_json(d: dict[str, Any] | None) -> Any:
+    """Rebuild a target from :func:`~bifid.cbc._controllers.target_to_json` (or None)."""
+    if not d:
+        return None
+    if d["kind"] == "polar":
+        T = [[float(v) for v in row] for row in d["transform"]]
+        return PolarTarget(
+            np.array(d["coefficients"], dtype=float),
+            transform=((T[0][0], T[0][1]), (T[1][0], T[1][1])),
+            origin=(float(d["origin"][0]), float(d["origin"][1])),
+        )
+    if d["kind"] == "elliptic":
+        return EllipticTarget(
+            float(d["amplitude"]), float(d["omega"]), (float(d["offset"][0]), float(d["offset"][1]))
+        )
+    if d["kind"] == "fourier":
+        return FourierTarget(np.array(d["coefficients"], dtype=float))
     return None
 
 
@@ -87,7 +71,7 @@ def lco_record(pt: LCOPoint, protocol: str):
     for n in names:
         extra[f"offset_{n}"] = float(pt.offset[n])
         extra[f"amp_{n}"] = float(pt.amplitude[n])
-    extra.update(_target_extra(pt.target))
+    extra["target"] = json.dumps(target_to_json(pt.target))
     target = None
     if np.all(np.isfinite(m.target)):
         # the target is x1*: centre it like x1 (when x1 is an output)
@@ -118,12 +102,8 @@ def forced_record(pt: ForcedPoint, protocol: str, curve: int = 0):
         "growth": _finite(pt.growth),
         "t_start": float(m.time[0]),
     }
-    extra.update(_target_extra(pt.target))
-    q = (pt.coefficients.shape[0] - 1) // 2
-    for i, c in enumerate(pt.coefficients):
-        name = "A" if i <= q else "B"
-        k = i if i <= q else i - q
-        extra[f"response_{name}{k}"] = float(c)
+    extra["target"] = json.dumps(target_to_json(pt.target))
+    extra["response"] = json.dumps([float(c) for c in pt.coefficients])
     return ForcedRecord(
         omega=pt.omega,
         forcing=pt.forcing,

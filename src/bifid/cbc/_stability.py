@@ -173,8 +173,9 @@ def _state_signal(system: System, name: str) -> tuple[int, bool]:
     )
 
 
-def controlled_rhs(system: System, controller: PDController, target: AbstractTarget
-                   ) -> tuple[Callable, int]:
+def controlled_rhs(
+    system: System, controller: PDController, target: AbstractTarget
+) -> tuple[Callable, int]:
     """The closed-loop vector field with continuous (unsampled) control.
 
     .. math::
@@ -227,19 +228,29 @@ def controlled_rhs(system: System, controller: PDController, target: AbstractTar
 
 
 def augmented_params(
-    p: np.ndarray, controller: PDController, target: AbstractTarget,
+    p: np.ndarray,
+    controller: PDController,
+    target: AbstractTarget,
     forcing: tuple[float, float, float] | None = None,
 ) -> np.ndarray:
     """``q = [p, kp, kd, γ, Ω, ψ, target.vector()]`` for :func:`controlled_rhs`."""
     g, Om, psi = forcing if forcing is not None else (0.0, 0.0, 0.0)
-    return np.concatenate([np.asarray(p, dtype=float),
-                           [controller.kp, controller.kd, g, Om, psi], target.vector()])
+    return np.concatenate(
+        [np.asarray(p, dtype=float), [controller.kp, controller.kd, g, Om, psi], target.vector()]
+    )
 
 
 def orbit_polar_target(
-    orbit: np.ndarray, system: System, x1: str, x2: str, n_harmonics: int,
-    scale: tuple[float, float] = (1.0, 1.0), origin: tuple[float, float] = (0.0, 0.0),
-    p: np.ndarray | None = None, n_fine: int = 4096, transform=None,
+    orbit: np.ndarray,
+    system: System,
+    x1: str,
+    x2: str,
+    n_harmonics: int,
+    scale: tuple[float, float] = (1.0, 1.0),
+    origin: tuple[float, float] = (0.0, 0.0),
+    p: np.ndarray | None = None,
+    n_fine: int = 4096,
+    transform=None,
 ) -> PolarTarget:
     """The polar target (eq. 3.22) that is non-invasive on a known orbit.
 
@@ -267,7 +278,6 @@ def orbit_polar_target(
     xi1, xi2 = frame.to_xi(a, b)
     coef = polar_project(np.arctan2(xi2, xi1), np.hypot(xi1, xi2), n_harmonics)
     return frame.with_coefficients(coef)
-
 
 
 def controlled_floquet(
@@ -312,7 +322,11 @@ def controlled_floquet(
         need = 2.0 * math.pi * controller.filter_hz * float(period) / orbit.shape[0]
         steps = max(4, 1 << math.ceil(math.log2(max(need, 1.0))))
     mults, _, fmax = floquet_multipliers(
-        rhs, orbit[None], np.array([float(period)]), q[None], steps_per_mesh=steps,
+        rhs,
+        orbit[None],
+        np.array([float(period)]),
+        q[None],
+        steps_per_mesh=steps,
         autonomous=forcing is None,
     )
     return mults[0], float(fmax[0])

@@ -1,142 +1,120 @@
-"""Ground truth for CBC: the uncontrolled system's orbit at exactly the measured parameter.
+"""Ground truth for CBC campaigns: the model's curves by continuation, each measured point
+compared with the uncontrolled system's orbit at exactly its own parameter.
 
-CBC measures an orbit of the *uncontrolled* system when the control is non-invasive. The
-check is Newton's method on the collocation equations of the uncontrolled system
-(:func:`bifid.continuation.orbit_problem`) at the measured parameter value, started
-from any nearby orbit (a continuation branch point, or the virtual rig's true states):
-the corrected orbit does not depend on the start, so it is an independent reference.
+CBC measures an orbit of the *uncontrolled* system when the control is non-invasive; the
+check is Newton's method on the collocation equations of the uncontrolled system at the
+measured parameter (:func:`bifid.continuation.truth.correct_orbit`), started from the
+nearest orbit of the continued branch: the corrected orbit does not depend on the start,
+so it is an independent reference (``bifid cbc --truth``, the benchmarks).
 """
 
 from __future__ import annotations
 
 from collections.abc import Sequence
 
-import jax.numpy as jnp
 import numpy as np
 
+from bifid.continuation import ContinuationOptions, continue_from_hopf, frc, scurve
+from bifid.continuation.truth import centred_amplitudes, correct_orbit
 from bifid.errors import BifidInputError, ConvergenceError
-from bifid.signal import fourier_project, max_abs
 from bifid.systems import System
 
-__all__ = ["centred_amplitudes", "correct_orbit", "orbit_from_samples"]
+__all__ = ["forced_truth", "lco_truth"]
 
 
-def orbit_from_samples(states: np.ndarray, omega: float, sample_rate: float,
-                       n_mesh: int = 64, n_harmonics: int = 15) -> np.ndarray:
-    """One period of a sampled periodic state trajectory on ``n_mesh`` equispaced points.
+def lco_truth(
+    system: System,
+    p,
+    param: str,
+    lo: float,
+    hi: float,
+    points: list[dict],
+    signals: Sequence[str],
+    x1: str,
+) -> dict | None:
+    """The model's limit cycles over ``[lo, hi]`` (widened by its width or a quarter of its
+    values, whichever is larger, on both sides) by
+    continuation, and each measured point compared with the orbit Newton-corrected at its
+    own parameter from the nearest branch orbit (``truth_amplitude``, ``relative_error``,
+    ``truth_stable`` added to the point dicts). None when continuation finds no cycles."""
+    import warnings
 
-    Least-squares Fourier series at ``omega`` of each state over the whole record.
-    """
-    states = np.asarray(states, dtype=float)
-    theta = omega * np.arange(states.shape[0]) / sample_rate
-    c = fourier_project(states, theta, n_harmonics)
-    tau = 2.0 * np.pi * np.arange(n_mesh) / n_mesh
-    k = np.arange(1, n_harmonics + 1)
-    B = np.hstack([np.ones((n_mesh, 1)), np.cos(np.outer(tau, k)), np.sin(np.outer(tau, k))])
-    return B @ c
-
-
-def correct_orbit(system: System, param: str, value: float, orbit: np.ndarray, period: float,
-                  p: Sequence[float] | None = None, n_mesh: int = 64, tol: float = 1e-11
-                  ) -> tuple[np.ndarray, float]:
-    """Newton-correct an approximate orbit of the uncontrolled ``system`` at ``param=value``.
-
-    Parameters
-    ----------
-    orbit : array of shape (M, n)
-        Approximate orbit over one period on an equispaced grid.
-    period : float
-        Approximate period.
-
-    Returns
-    -------
-    orbit : ndarray of shape (n_mesh, n)
-    period : float
-
-    Raises
-    ------
-    ConvergenceError
-        If Newton's method does not converge.
-    """
-    from bifid.continuation import correct, fourier_differentiation_matrix, orbit_problem
-
-    V = np.asarray(orbit, dtype=float)
-    if V.ndim != 2 or V.shape[1] != system.n_states:
-        raise BifidInputError(f"orbit must have shape (M, {system.n_states}), got {V.shape}.")
-    M0 = V.shape[0]
-    c = np.fft.rfft(V, axis=0)
-    V = np.fft.irfft(c[: n_mesh // 2 + 1], n=n_mesh, axis=0) * (n_mesh / M0)
+    span = max(hi - lo, 0.25 * max(abs(lo), abs(hi)), 1e-9)
+    a, b = lo - span, hi + span
+    opts = ContinuationOptions(ds=1e-3, ds_max=0.3, ds_min=1e-9, p_min=a, p_max=b, max_steps=400)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            _, branches = continue_from_hopf(
+                system, param, a, b, p=p, n_mesh=32, orbit_options=opts
+            )
+        except (BifidInputError, ConvergenceError):
+            return None
     n = system.n_states
-    problem = orbit_problem(system.field, n_mesh, n)
-    D = fourier_differentiation_matrix(n_mesh)
-    pv = system.param_vector() if p is None else jnp.asarray(p, dtype=jnp.float64)
-    idx = system.index(param)
-    pv = pv.at[idx].set(value)
-    args = {"p": pv, "idx": jnp.asarray(idx), "dref": jnp.asarray((D @ V).ravel())}
-    y0 = np.concatenate([V.ravel(), [period, value]])
-    e = np.zeros_like(y0)
-    e[-1] = 1.0
-    y, ok, _, res = correct(problem, y0, e, value, args, tol=tol, max_iter=40)
-    if not ok:
-        raise ConvergenceError(
-            f"Newton did not converge on the orbit of {system.name!r} at {param}={value:g} "
-            f"(residual {res:.1e})."
+    orbits = []
+    for br in branches:
+        M = int(br.meta.get("n_mesh", 32))
+        for i in range(len(br)):
+            orbits.append(
+                (
+                    float(br.params[i]),
+                    br.solutions[i, : M * n].reshape(M, n),
+                    float(br.data["period"][i]),
+                    bool(br.stable[i]),
+                )
+            )
+    if not orbits:
+        return None
+    amps = np.array([centred_amplitudes(o[1]) for o in orbits])
+    truth = {
+        "param": np.array([o[0] for o in orbits]),
+        "stable": np.array([o[3] for o in orbits]),
+        "amplitude": {s: amps[:, system.state_index(s)] for s in signals},
+    }
+    i1 = system.state_index(x1)
+    for pt in points:
+        a_meas = pt["amplitude"][x1]
+        best = min(
+            orbits,
+            key=lambda o: (
+                abs(o[0] - pt["param"]) / max(abs(pt["param"]), 1)
+                + abs(float(np.ptp(o[1][:, i1])) / 2 - a_meas) / a_meas
+            ),
         )
-    return np.asarray(y[: n_mesh * n]).reshape(n_mesh, n), float(y[n_mesh * n])
+        try:
+            V, _ = correct_orbit(system, param, pt["param"], best[1], best[2], p=p)
+        except ConvergenceError:
+            continue
+        amp = centred_amplitudes(V)
+        pt["truth_amplitude"] = {s: float(amp[system.state_index(s)]) for s in pt["amplitude"]}
+        pt["relative_error"] = {
+            s: pt["amplitude"][s] / pt["truth_amplitude"][s] - 1.0 for s in pt["amplitude"]
+        }
+        pt["truth_stable"] = best[3]
+    return truth
 
 
-def centred_amplitudes(orbit: np.ndarray) -> np.ndarray:
-    """``max_t |x_s(t) - x̄_s|`` per state of a periodic orbit on an equispaced mesh."""
+def forced_truth(
+    system: System, p, protocol: str, fixed: float, lo: float, hi: float, signal: str
+) -> tuple[dict, list[dict]] | None:
+    """The model's S-curve (``protocol="scurve"``, ``Ω = fixed``) or FRC (``γ = fixed``)
+    over the range by continuation, and its folds; None when continuation fails."""
+    import warnings
 
-    V = np.asarray(orbit, dtype=float)
-    return np.atleast_1d(max_abs(V - V.mean(axis=0)))
-
-
-def forced_orbit_from_samples(states: np.ndarray, phase: np.ndarray, psi: float,
-                              n_mesh: int = 64, n_harmonics: int = 15) -> np.ndarray:
-    """One forcing period of sampled states on ``τ_k = 2πk/M`` in the *system's* phase.
-
-    The rig's force is ``γ cos(θ - ψ)`` and the system's ``F cos τ``: ``τ = θ - ψ``.
-    """
-    c = fourier_project(np.asarray(states, dtype=float), np.asarray(phase) - psi, n_harmonics)
-    tau = 2.0 * np.pi * np.arange(n_mesh) / n_mesh
-    k = np.arange(1, n_harmonics + 1)
-    B = np.hstack([np.ones((n_mesh, 1)), np.cos(np.outer(tau, k)), np.sin(np.outer(tau, k))])
-    return B @ c
-
-
-def correct_forced(system: System, omega: float, forcing: float, orbit: np.ndarray,
-                   p: Sequence[float] | None = None, n_mesh: int = 64, tol: float = 1e-11
-                   ) -> np.ndarray:
-    """Newton-correct a forced response of ``system`` at ``(F, Ω) = (forcing, omega)``.
-
-    ``orbit`` (M, n) is a guess on ``τ_k = 2πk/M`` with the force ``F cos τ``.
-
-    Raises
-    ------
-    ConvergenceError
-        If Newton's method does not converge.
-    """
-    from bifid.continuation import correct, forced_problem
-
-    V = np.asarray(orbit, dtype=float)
-    M0 = V.shape[0]
-    c = np.fft.rfft(V, axis=0)
-    V = np.fft.irfft(c[: n_mesh // 2 + 1], n=n_mesh, axis=0) * (n_mesh / M0)
-    n = system.n_states
-    problem = forced_problem(system, n_mesh, 1)
-    pv = system.param_vector() if p is None else jnp.asarray(p, dtype=jnp.float64)
-    iF, iOm = system.index("F"), system.index("Omega")
-    pv = pv.at[iOm].set(omega).at[iF].set(forcing)
-    args = {"p": pv, "idx": jnp.asarray([iF]),
-            "obs": jnp.asarray(system.state_index(system.observed))}
-    y0 = np.concatenate([V.ravel(), [forcing]])
-    e = np.zeros_like(y0)
-    e[-1] = 1.0
-    y, ok, _, res = correct(problem, y0, e, forcing, args, tol=tol, max_iter=40)
-    if not ok:
-        raise ConvergenceError(
-            f"Newton did not converge on the forced response of {system.name!r} at "
-            f"F={forcing:g}, Omega={omega:g} (residual {res:.1e})."
-        )
-    return np.asarray(y[: n_mesh * n]).reshape(n_mesh, n)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        try:
+            if protocol == "scurve":
+                br = scurve(system, fixed, (0.5 * lo, 1.1 * hi), p=p, n_mesh=32, observed=signal)
+            else:
+                br = frc(system, fixed, (lo, hi), p=p, n_mesh=32, observed=signal)
+        except (BifidInputError, ConvergenceError):
+            return None
+    key = "forcing" if protocol == "scurve" else "omega"
+    curve = {
+        key: np.asarray(br.data[key]),
+        "amplitude": np.asarray(br.data["observed_amplitude"]),
+        "stable": np.asarray(br.stable),
+    }
+    folds = [{key: sp.param, "amplitude": sp.data.get("amplitude")} for sp in br.special("fold")]
+    return curve, folds

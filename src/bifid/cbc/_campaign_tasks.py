@@ -1,0 +1,430 @@
+"""The tasks of the campaign runner (:mod:`bifid.cbc._campaign`), one function per protocol.
+
+Each task function advances the campaign's cursor and checkpoints after every unit of
+work (a recorded continuation point, a scanned value), so that it can be re-entered from
+any checkpoint: a continuation branch is rebuilt from its saved state (driver, Broyden
+Jacobian, problem, gains) instead of being started again.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import replace
+from typing import Any
+
+import numpy as np
+
+from bifid.cbc._campaign import Campaign, _Branch
+from bifid.cbc._forced import ForcedProblem, open_loop
+from bifid.cbc._forced_measure import ForcedCBCOptions
+from bifid.cbc._measured import BroydenCorrector
+from bifid.cbc._ppcbc import PPCBCOptions, PPCBCProblem, make_point
+from bifid.cbc._ppcbc_family import TargetFamily, bootstrap
+from bifid.cbc._ppcbc_scan import scan
+from bifid.continuation import Continuation, ContinuationOptions, ContinuationState
+from bifid.errors import ConvergenceError
+
+__all__ = ["run_tasks"]
+
+GAIN_FACTOR = 2.0  # controller gains are multiplied by this on loss of lock
+
+
+def run_tasks(camp: Campaign) -> None:
+    """Run the campaign's remaining tasks."""
+    if camp.spec.protocol != "ppcbc":
+        _forced(camp)
+    elif camp.spec.continuation:
+        _ppcbc_continuation(camp)
+    else:
+        _scan_values(camp)
+
+
+# ------------------------------------------------------------------------------ helpers
+def _with_gains(opts: Any, gains: list[float] | None) -> Any:
+    return opts if gains is None else replace(opts, kp=float(gains[0]), kd=float(gains[1]))
+
+
+def _raised(opts: Any) -> Any:
+    return replace(opts, kp=GAIN_FACTOR * opts.kp, kd=GAIN_FACTOR * opts.kd)
+
+
+def _driver_options(camp: Campaign, newton_max: int, ds_max: float) -> ContinuationOptions:
+    spec = camp.spec
+    lo, hi = sorted(float(v) for v in spec.range)
+    return ContinuationOptions(
+        ds=spec.ds,
+        ds_min=spec.ds / 16.0,
+        ds_max=max(ds_max, spec.ds),
+        max_steps=10**6,
+        p_min=lo,
+        p_max=hi,
+        newton_max_iter=newton_max,
+        growth=1.3,
+        detect_folds=False,
+        detect_bifurcations=False,
+    )
+
+
+def _direction(camp: Campaign) -> float:
+    a, b = (float(v) for v in camp.spec.range)
+    return 1.0 if b > a else -1.0
+
+
+def _save(br: _Branch, extra: dict[str, Any]) -> dict[str, Any]:
+    st = br.state
+    return {
+        "driver": {
+            "y": st.y,
+            "t": st.t,
+            "ds": st.ds,
+            "sign": st.sign,
+            "n_points": st.n_points,
+            "y_prev": st.y_prev,
+            "status": st.status,
+            "message": st.message,
+        },
+        "corrector": br.corrector.state(),
+        "problem": br.problem.state(),
+        "retries": br.retries,
+        **extra,
+    }
+
+
+def _driver_state(saved: dict[str, Any]) -> ContinuationState:
+    d = saved["driver"]
+    return ContinuationState(
+        y=np.asarray(d["y"], float),
+        t=np.asarray(d["t"], float),
+        ds=float(d["ds"]),
+        sign=float(d["sign"]),
+        n_points=int(d["n_points"]),
+        y_prev=None if d["y_prev"] is None else np.asarray(d["y_prev"], float),
+        status=str(d["status"]),
+        message=str(d["message"]),
+    )
+
+
+def _start_branch(
+    corrector: BroydenCorrector, driver: Continuation, y0: np.ndarray, direction: float
+):
+    """Correct ``y0`` at fixed parameter, a finite-difference Jacobian there, and the
+    tangent from it; ``(state, correction)`` (state None when it failed)."""
+    pi = driver.param_index
+    e_p = np.zeros(y0.shape[0])
+    e_p[pi] = 1.0
+    r = corrector.correct(y0, e_p, float(y0[pi]), None)
+    if not r.converged:
+        return None, r
+    corrector.accept(r)
+    corrector.bootstrap(r.info["evaluation"])
+    state = driver.start(r.y, direction * e_p, None, correct_start=False)
+    return state, r
+
+
+# -------------------------------------------------------------------------- PP-CBC scans
+def _ppcbc_options(camp: Campaign) -> PPCBCOptions:
+    return _with_gains(PPCBCOptions(**dict(camp.spec.options)), camp.cursor.get("gains"))
+
+
+def _scan_once(
+    camp: Campaign, value: float, opts: PPCBCOptions, branch: int, known: list[tuple[float, float]]
+):
+    """One scan at ``value``; points already recorded there (``known``) are not again."""
+    spec = camp.spec
+
+    def keep(pt) -> None:
+        a = float(pt.amplitude[opts.x1])
+        if any(
+            abs(v - pt.param) <= 1e-9 * max(1.0, abs(v)) and abs(b - a) <= 0.02 * a
+            for v, b in known
+        ):
+            return  # two brackets (or a repeated scan) converged to the same LCO
+        known.append((float(pt.param), a))
+        camp.record(pt, branch)
+
+    camp.seed_rig()
+    return scan(
+        camp.rig,
+        spec.param,
+        value,
+        spec.amplitudes,
+        opts,
+        omega_guess=float(camp.cursor["omega"]),
+        on_point=keep,
+        on_evaluation=camp.on_evaluation,
+    )
+
+
+def _scan_value(camp: Campaign, value: float, branch: int):
+    """Scan at ``value``; a scan with failures is repeated once with raised gains."""
+    opts = _ppcbc_options(camp)
+    known: list[tuple[float, float]] = []
+    res = _scan_once(camp, value, opts, branch, known)
+    if res.failures:
+        raised = _raised(opts)
+        again = _scan_once(camp, value, raised, branch, known)
+        if len(again.failures) < len(res.failures):
+            camp.cursor["gains"] = [raised.kp, raised.kd]
+            camp.warnings.append(
+                f"PP-CBC at {camp.spec.param}={value:g}: controller gains raised to kp = "
+                f"{raised.kp:g}, kd = {raised.kd:g} (the scan failed with the others)"
+            )
+            again.points = res.points + again.points
+            again.found = res.found + again.found
+            res = again
+    camp.failures += res.failures
+    camp.warnings += res.warnings
+    if res.points:
+        camp.cursor["omega"] = float(res.points[-1].frequency)
+    elif not res.failures:
+        camp.fail(
+            {"param": value},
+            "no zero of the control error on the amplitude grid "
+            "(no LCO in the range of target amplitudes?)",
+        )
+    return res
+
+
+def _scan_values(camp: Campaign) -> None:
+    if not camp.branches:
+        camp.new_branch("scan")
+    values = camp.spec.values
+    while int(camp.cursor["task"]) < len(values):
+        _scan_value(camp, float(values[int(camp.cursor["task"])]), 0)
+        camp.cursor["task"] = int(camp.cursor["task"]) + 1
+        camp.checkpoint()
+    if camp.failures:
+        camp.end_branch(0, "failed", camp.failures[0].reason)
+
+
+# --------------------------------------------------------------------- PP-CBC branches
+def _ppcbc_continuation(camp: Campaign) -> None:
+    spec = camp.spec
+    if int(camp.cursor["task"]) == 0:
+        camp.new_branch("scan")
+        res = _scan_value(camp, float(spec.range[0]), 0)
+        x1 = _ppcbc_options(camp).x1
+        starts: list[dict[str, Any]] = []
+        for (fam, ev, cor), pt in zip(res.found, res.points, strict=True):
+            a = float(pt.amplitude[x1])
+            if all(abs(s["amp"] - a) > 0.02 * a for s in starts):
+                starts.append(
+                    {
+                        "y": ev.y,
+                        "frame": fam.frame(),
+                        "jacobian": cor.jacobian,
+                        "omega": cor.problem.omega,
+                        "amp": a,
+                    }
+                )
+        camp.cursor["starts"] = starts
+        camp.cursor["task"] = 1
+        camp.checkpoint()
+    starts = camp.cursor["starts"]
+    while int(camp.cursor["task"]) <= len(starts):
+        k = int(camp.cursor["task"]) - 1
+        saved = camp.cursor.get("branch")
+        if saved is None and (_covered(camp, starts[k]) or camp.budget_left() <= 0):
+            camp.cursor["task"] = k + 2
+            camp.checkpoint()
+            continue
+        _ppcbc_branch(camp, starts[k], saved)
+        camp.cursor["task"] = k + 2
+        camp.cursor["branch"] = None
+        camp.checkpoint()
+
+
+def _covered(camp: Campaign, start: dict[str, Any]) -> bool:
+    """Whether an LCO of the start scan lies on a branch followed already."""
+    lam, amp = float(start["y"][-1]), float(start["amp"])
+    key = f"amp_{_ppcbc_options(camp).x1}"
+    return any(
+        b > 0
+        and abs(rec.param - lam) <= 1e-9 * max(1.0, abs(lam))
+        and abs(rec.extra.get(key, math.nan) - amp) <= 0.02 * amp
+        for rec, b in zip(camp.records, camp.rec_branch, strict=True)
+    )
+
+
+def _ppcbc_branch(camp: Campaign, start: dict[str, Any], saved: dict[str, Any] | None) -> None:
+    spec = camp.spec
+    opts = _ppcbc_options(camp)
+    state = (
+        saved["problem"]
+        if saved is not None
+        else {
+            "omega": start["omega"],
+            "frame": start["frame"],
+            "vec_ref": start["y"][:-1],
+            "param_scale": spec.param_scale,
+        }
+    )
+    family = TargetFamily.from_frame(opts, state["frame"])
+    problem = PPCBCProblem(
+        camp.rig,
+        opts,
+        family,
+        spec.param,
+        float(state["omega"]),
+        np.asarray(state["vec_ref"], float),
+        float(state["param_scale"]),
+    )
+    if state.get("vec_now") is not None:
+        problem.rescale(np.asarray(state["vec_now"], float))
+
+    corrector = BroydenCorrector(
+        problem,
+        max_iter=opts.newton_max,
+        trust=0.5,
+        min_radius=0.1,
+        on_evaluation=camp.on_evaluation,
+    )
+    driver = Continuation(
+        corrector,
+        problem.param_index,
+        _driver_options(camp, opts.newton_max, spec.ds),
+        weights=problem.weights,
+        predictor="secant",
+    )
+
+    def point(ev, evaluations: int):
+        return make_point(camp.rig, problem.opts, problem.family, ev, evaluations, "continuation")
+
+    if saved is not None:
+        b = int(saved["branch"])
+        corrector.restore(saved["corrector"])
+        br = _Branch(problem, corrector, driver, _driver_state(saved), point, int(saved["retries"]))
+        if not camp.rig_restored:  # a rig that cannot restore its state starts from rest
+            a0 = float(br.state.y[0])
+            bootstrap(camp.rig, opts, 0.8 * a0, problem.omega, a_max=a0)
+    else:
+        b = camp.new_branch("continuation")
+        corrector.jacobian = np.asarray(start["jacobian"], float)
+        camp.seed_rig()
+        # from whatever the rig held last (another LCO, or rest after a trip): the
+        # oscillation started near this LCO first
+        camp.rig.set_parameter(spec.param, float(start["y"][-1]))
+        a0 = float(start["y"][0])
+        bootstrap(camp.rig, opts, 0.8 * a0, float(start["omega"]), a_max=a0)
+        st, r = _start_branch(corrector, driver, np.asarray(start["y"], float), _direction(camp))
+        if st is None:
+            camp.fail(
+                {spec.param: float(start["y"][-1])},
+                f"the LCO of the scan could not be held again: {r.info.get('reason', '')}",
+            )
+            camp.end_branch(b, "failed", r.info.get("reason", ""))
+            return
+        br = _Branch(problem, corrector, driver, st, point)
+
+    def recover(br: _Branch, raise_gains: bool) -> None:
+        if raise_gains:
+            new = _raised(br.problem.opts)
+            br.problem.opts = new
+            br.problem.family = br.problem.family.with_options(new)
+            camp.cursor["gains"] = [new.kp, new.kd]
+        # wherever the failed attempts left the rig (at rest after a trip, or far from the
+        # branch): start the oscillation again, then hold the last target
+        camp.rig.set_parameter(spec.param, float(br.state.y[-1]))
+        a0 = float(br.state.y[0])
+        bootstrap(camp.rig, br.problem.opts, 0.8 * a0, br.problem.omega, a_max=a0)
+        camp.seed_rig()
+        ev = br.corrector.evaluate(br.state.y)
+        br.corrector.jacobian = None
+        br.corrector.bootstrap(ev)
+
+    camp.cursor["branch"] = _save(br, {"branch": b})
+    camp.follow(br, b, lambda x: _save(x, {"branch": b}), recover)
+
+
+# -------------------------------------------------------------------------------- forced
+def _forced(camp: Campaign) -> None:
+    spec = camp.spec
+    opts = _with_gains(ForcedCBCOptions(**dict(spec.options)), camp.cursor.get("gains"))
+    saved = camp.cursor.get("branch")
+    lam0 = float(spec.range[0])
+    if saved is None and int(camp.cursor["task"]) > 0:
+        return  # finished (its end was recorded)
+    if saved is not None:
+        st = saved["problem"]
+        problem = ForcedProblem(
+            camp.rig,
+            opts,
+            spec.protocol,
+            spec.fixed,
+            float(st["a_ref"]),
+            float(st["param_scale"]),
+            float(st["a_first"]),
+            np.asarray(st["pstar"], float),
+        )
+        problem.periods = float(st["periods"])
+    else:
+        camp.seed_rig()
+        gamma, om = (lam0, spec.fixed) if spec.protocol == "scurve" else (spec.fixed, lam0)
+        try:
+            p0 = open_loop(camp.rig, opts, gamma, om)
+        except ConvergenceError as exc:
+            camp.new_branch(spec.protocol)
+            camp.fail({spec.param: lam0}, f"the open-loop response could not be measured: {exc}")
+            camp.end_branch(0, "failed", str(exc))
+            return
+        q = opts.n_harmonics
+        a_first = max(math.hypot(p0[1], p0[q + 1]), 1e-12)
+        # S-curve: half the first amplitude extrapolated linearly to the top of the range;
+        # FRC: 20 times the first amplitude
+        a_ref = (
+            0.5 * a_first * max(spec.range) / lam0 if spec.protocol == "scurve" else 20.0 * a_first
+        )
+        problem = ForcedProblem(
+            camp.rig, opts, spec.protocol, spec.fixed, a_ref, spec.param_scale, a_first, p0
+        )
+    corrector = BroydenCorrector(
+        problem,
+        max_iter=opts.newton_max,
+        trust=2.0,
+        radius=2.0 * opts.ds_max,
+        on_evaluation=camp.on_evaluation,
+    )
+    driver = Continuation(
+        corrector,
+        2,
+        _driver_options(camp, opts.newton_max, opts.ds_max),
+        weights=problem.weights,
+        predictor="secant",
+    )
+    driver.options = driver.options.with_(ds=opts.ds, ds_min=opts.ds / 16.0)
+
+    def point(ev, evaluations: int):
+        return problem.point(ev, evaluations)
+
+    if saved is not None:
+        corrector.restore(saved["corrector"])
+        br = _Branch(problem, corrector, driver, _driver_state(saved), point, int(saved["retries"]))
+    else:
+        b = camp.new_branch(spec.protocol)
+        p0 = problem.pstar
+        y0 = problem.unknowns(float(p0[1]), float(p0[opts.n_harmonics + 1]), lam0)
+        if spec.protocol == "scurve":  # the target's fundamental along cos θ
+            problem.pstar = np.zeros_like(p0)
+        st, r = _start_branch(corrector, driver, y0, _direction(camp))
+        if st is None:
+            camp.fail({spec.param: lam0}, f"first point: {r.info.get('reason', '')}")
+            camp.end_branch(b, "failed", r.info.get("reason", ""))
+            camp.cursor["task"] = 1
+            return
+        camp.record(point(r.info["evaluation"], int(r.info.get("evaluations", 0))), b, write=False)
+        br = _Branch(problem, corrector, driver, st, point)
+        camp.cursor["task"] = 1
+        camp.cursor["branch"] = _save(br, {"branch": 0})
+        camp.checkpoint()
+
+    def recover(br: _Branch, raise_gains: bool) -> None:
+        if raise_gains:
+            br.problem.opts = _raised(br.problem.opts)
+            camp.cursor["gains"] = [br.problem.opts.kp, br.problem.opts.kd]
+        camp.seed_rig()
+        ev = br.corrector.evaluate(br.state.y)
+        br.corrector.jacobian = None
+        br.corrector.bootstrap(ev)
+
+    camp.follow(br, 0, lambda x: _save(x, {"branch": 0}), recover)
+    camp.cursor["branch"] = None
