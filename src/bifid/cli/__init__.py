@@ -6,8 +6,8 @@ numerical failure or incomplete result, 4 environment (disk full, read-only, per
 network), 130 interrupted; each failure prints one line on stderr, never a traceback
 (the mapping is :func:`bifid.cli._common.exit_status`).
 
-Sub-commands live in one module each (``_continuation``, ``_cbc``, ``_fit_*``,
-``_predict``, ``_data``, ``_demo``) and register themselves on :data:`app`.
+Sub-commands live in one module each (``_continuation``, ``_cbc``, ``_fit``,
+``_predict``, ``_data``, ``_demo``, ``_systems``) and register themselves on :data:`app`.
 """
 
 from __future__ import annotations
@@ -35,9 +35,7 @@ from bifid.cli._common import (
 _COMMAND_MODULES = (
     "bifid.cli._continuation",
     "bifid.cli._cbc",
-    "bifid.cli._fit_hopf",
-    "bifid.cli._fit_forced",
-    "bifid.cli._fit_mechanistic",
+    "bifid.cli._fit",
     "bifid.cli._predict",
     "bifid.cli._data",
     "bifid.cli._demo",
@@ -47,11 +45,7 @@ _COMMAND_MODULES = (
 
 def _load_commands() -> None:
     for name in _COMMAND_MODULES:
-        try:
-            importlib.import_module(name)
-        except ModuleNotFoundError as exc:  # a capability not built yet
-            if exc.name != name:
-                raise
+        importlib.import_module(name)
 
 
 def _enable_compilation_cache() -> None:

@@ -39,10 +39,6 @@ class FlutterDemoSettings:
     """What the flutter demo does (every field enters the cache keys of its stages)."""
 
     speeds: tuple[float, ...] = (15.0, 15.5, 16.0, 16.5, 17.0, 17.5, 17.75)
-    # above this speed only the small unstable LCO is scanned for (targets far outside it,
-    # beyond the stable LCO's basin, trip the rig): the Hopf point is pinned by these
-    small_grid_above: float = 17.4
-    small_grid: tuple[float, float, int] = (0.004, 0.012, 5)
     noise_fraction: float = 0.01
     sample_rate: float = 5000.0
     seed: int = 0
@@ -61,8 +57,7 @@ class FlutterDemoSettings:
         d = asdict(self)
         truth = {"range": d["truth_range"], "tests": d["test_points"], "n_mesh": 64,
                  "speeds": d["speeds"]}
-        campaign = {k: d[k] for k in ("speeds", "noise_fraction", "sample_rate", "seed",
-                                      "small_grid_above", "small_grid")}
+        campaign = {k: d[k] for k in ("speeds", "noise_fraction", "sample_rate", "seed")}
         mech = {"on": d["mechanistic"], "start": d["mechanistic_start"], "free": ["ka2", "ka3"]}
         return {"truth": truth, "campaign": campaign, "model": dict(d["model"]),
                 "mechanistic": mech}
@@ -190,60 +185,28 @@ def _noise_levels(tarr: dict[str, np.ndarray], cfg: FlutterDemoSettings) -> dict
 
 
 def _campaign(path: Path, cfg: FlutterDemoSettings, noise: dict[str, float], bar) -> tuple:
-    """PP-CBC amplitude scans at every speed; each point appended as soon as it converges."""
-    from bifid.cbc import VirtualRig, ppcbc_scan
-    from bifid.cbc._defaults import defaults_for
-    from bifid.cbc._records import lco_record
-    from bifid.data import append_record
-    from bifid.io import run_info
-    from bifid.systems import get_system
+    """PP-CBC amplitude scans at every speed (:func:`bifid.cbc.ppcbc_campaign`); each point
+    written to ``path`` as soon as it converges."""
+    from bifid.cbc import ppcbc_campaign
 
-    system = get_system("flutter")
-    dflt = defaults_for("flutter")
     if path.exists():
         path.unlink()  # a campaign with other settings: start afresh
-    rig = VirtualRig(system, {}, outputs=dflt.outputs, sample_rate=cfg.sample_rate,
-                     noise=noise, seed=cfg.seed, derivative_cutoff=dflt.derivative_cutoff)
-    opts = dflt.ppcbc_options()
-    grid = np.linspace(*dflt.amplitude_range, dflt.n_amplitudes)
-    settings = run_info("demo flutter: campaign", speeds=list(cfg.speeds), noise=noise,
-                        seed=cfg.seed, options=opts.to_json(), rig=rig.describe(),
-                        amplitude_grid=grid.tolist())
-    ds_kwargs = dict(signal_names=list(rig.output_names), param_name="U", param_units="m/s",
-                     system="flutter", settings=settings,
-                     source="bifid demo flutter (virtual PP-CBC rig)",
-                     signal_units=dict(dflt.signal_units))
     count = [0]
-    seen: list[tuple[float, float]] = []
 
     def on_point(pt) -> None:
-        a = float(pt.amplitude[opts.x1])
-        if any(abs(u - pt.param) < 1e-9 and abs(b - a) <= 0.02 * a for u, b in seen):
-            return  # two sign changes of the scan converged to the same LCO: keep one
-        seen.append((float(pt.param), a))
-        append_record(path, lco_record(pt, "ppcbc"), **ds_kwargs)
         count[0] += 1
         bar.note(f"U={pt.param:.4g} m/s {'stable' if pt.stable else 'unstable'}: "
                  f"{count[0]} LCOs")
 
-    failures = []
-    omega_guess = dflt.omega_guess
-    small = np.linspace(cfg.small_grid[0], cfg.small_grid[1], int(cfg.small_grid[2]))
-    for U in cfg.speeds:
-        with warnings.catch_warnings():
-            # each failure is also returned, recorded in the manifest and listed in the report
-            warnings.simplefilter("ignore", ConvergenceWarning)
-            pts, fails = ppcbc_scan(rig, "U", float(U),
-                                    small if U > cfg.small_grid_above else grid, opts,
-                                    omega_guess=omega_guess, on_point=on_point)
-        if pts:
-            omega_guess = pts[-1].frequency
-        failures += [f.to_json() for f in fails]
+    with warnings.catch_warnings():
+        # each failure is also returned, recorded in the manifest and listed in the report
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        result = ppcbc_campaign("flutter", param="U", values=cfg.speeds, noise=noise,
+                                seed=cfg.seed, rig_options={"sample_rate": cfg.sample_rate},
+                                out=path, on_point=on_point)
     if count[0] == 0:
-        from bifid.errors import ConvergenceError
-
         raise ConvergenceError("the virtual PP-CBC campaign converged no LCO at all.")
-    return count[0], failures
+    return count[0], [f.to_json() for f in result.failures]
 
 
 def _campaign_summary(data, info: dict[str, Any]) -> dict[str, Any]:

@@ -59,13 +59,13 @@ def compare(model, truth: dict[str, Any], tarr: dict[str, np.ndarray]) -> dict[s
         row = {"U": tp["U"], "branch": branch, "truth": {s: tp[s] for s in SIGNALS},
                "truth_omega": tp["omega"]}
         try:
-            amp = model.predict_amplitude([tp["U"]], branch)[0]
+            amp = model.predict_amplitude([tp["U"]], stable=tp["stable"])[0]
             names = list(model.signal_names_)
             row["model"] = {s: float(amp[names.index(s)]) for s in SIGNALS}
-            row["model_omega"] = float(model.predict_frequency([tp["U"]], branch)[0])
+            row["model_omega"] = float(model.predict_frequency([tp["U"]], stable=tp["stable"])[0])
             row["amplitude_rel"] = max(abs(row["model"][s] / tp[s] - 1) for s in SIGNALS)
             row["frequency_rel"] = abs(row["model_omega"] / tp["omega"] - 1)
-            orb = model.predict_orbit(tp["U"], branch, n_points=256)
+            orb = vars(model.predict_orbit(tp["U"], stable=tp["stable"], n_points=256))
             z = orb["signals"][:, [names.index(s) for s in SIGNALS]]
             row["series_rel"] = _aligned_error(z, tarr["test_orbits"][i])
         except BifidError as exc:  # the model has no such cycle: a failed prediction
@@ -88,8 +88,10 @@ def compare(model, truth: dict[str, Any], tarr: dict[str, np.ndarray]) -> dict[s
 # ------------------------------------------------------------------------------- figures
 def diagram_figure(model, data, truth, tarr, path: Path, mech=None) -> Path:
     """Amplitude–speed diagram: truth branch, measured LCOs, model branch and its band."""
-    pred = model.predict_diagram((float(truth["fold"]["U"]) - 0.6 if truth["fold"] else 14.0,
-                                  float(truth["hopf"]["U"]) + 0.4), n_points=160)
+    rng = (float(truth["fold"]["U"]) - 0.6 if truth["fold"] else 14.0,
+           float(truth["hopf"]["U"]) + 0.4)
+    pred = {**model.predict_diagram(range=rng, n_points=160).to_json(),
+            "band": model.ensemble_spread(rng, n_points=80)}
     fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
     sel = tarr["stable"].astype(bool)
     for ax, s in zip(axes, SIGNALS, strict=True):
@@ -159,7 +161,7 @@ def portraits_figure(model, data, path: Path, n_panels: int = 3) -> Path:
             ax.plot(r.signals[:n, 0], r.signals[:n, 1], ".", ms=1.2,
                     color="tab:blue" if st else "tab:red", alpha=0.35)
             try:
-                orb = model.predict_orbit(U, "stable" if st else "unstable")
+                orb = vars(model.predict_orbit(U, stable=st))
                 z = orb["signals"]
                 ax.plot(np.r_[z[:, ih], z[0, ih]], np.r_[z[:, ia], z[0, ia]],
                         color="k", lw=1.4, ls="-" if st else "--")
@@ -184,7 +186,7 @@ def series_figure(model, truth, tarr, rows, path: Path) -> Path:
         i = next((k for k, r in enumerate(rows) if r["U"] == U and r["branch"] == branch), None)
         if i is None or rows[i].get("model") is None:
             continue
-        orb = model.predict_orbit(U, branch, n_points=256)
+        orb = vars(model.predict_orbit(U, stable=branch == "stable", n_points=256))
         z = orb["signals"]
         tz = tarr["test_orbits"][i]
         n = z.shape[0]

@@ -128,9 +128,10 @@ def run_forced_demo(out: Path, settings: ForcedDemoSettings | None = None, *,
 
 
 def _campaign(path: Path, cfg: ForcedDemoSettings, noise: float, bar) -> tuple[int, list]:
-    """One CBC S-curve per frequency (:func:`bifid.cbc.scurve_campaign`), each point appended
-    to ``path`` as soon as it converges."""
-    from bifid.cbc import scurve_campaign
+    """One CBC S-curve per frequency (:func:`bifid.cbc.forced_campaign`), gathered in one
+    dataset at ``path`` (the curves numbered in order)."""
+    from bifid.cbc import forced_campaign
+    from bifid.data import combine_datasets, save_dataset
 
     if path.exists():
         path.unlink()  # a campaign with other settings: start afresh
@@ -140,12 +141,18 @@ def _campaign(path: Path, cfg: ForcedDemoSettings, noise: float, bar) -> tuple[i
         count[0] += 1
         bar.note(f"Ω={pt.omega:.4g}: {count[0]} points")
 
+    datasets, failures = [], []
     with warnings.catch_warnings():
         # failures are returned, recorded in the manifest and counted in the report
         warnings.simplefilter("ignore", ConvergenceWarning)
-        _data, _curves, failures = scurve_campaign(
-            "shaw_pierre", omegas=cfg.omegas, forcing_range=cfg.forcing_range,
-            noise=noise if noise > 0 else None, seed=cfg.seed, out=path, on_point=on_point)
+        for k, omega in enumerate(cfg.omegas):
+            result = forced_campaign(
+                "shaw_pierre", "scurve", omega=omega, span=cfg.forcing_range,
+                noise=noise if noise > 0 else None, seed=cfg.seed + k, on_point=on_point)
+            failures += [f.to_json() for f in result.failures]
+            if result.dataset is not None:
+                datasets.append(result.dataset)
     if count[0] == 0:
         raise ConvergenceError("the virtual CBC campaign converged no point at all.")
-    return count[0], [f.to_json() if hasattr(f, "to_json") else str(f) for f in failures]
+    save_dataset(combine_datasets(datasets), path)
+    return count[0], failures

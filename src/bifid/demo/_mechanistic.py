@@ -30,14 +30,15 @@ def write_mechanistic_failure(out: Path, reason: str) -> None:
 
 def fit_mechanistic(out: Path, data, start: tuple[float, float]) -> dict[str, Any]:
     """Fit ``ka2, ka3`` of ``flutter`` to the LCO dataset; save the result and its branch."""
-    from bifid.identify.mechanistic import LCOData, model_branch, whole_diagram_update
+    from bifid.identify import LCOData
+    from bifid.identify.mechanistic import model_branch, whole_diagram_update
     from bifid.systems import get_system
 
     s = get_system("flutter")
     true = s.param_dict(s.param_vector({}))
     p0 = s.param_vector({"ka2": start[0] * true["ka2"], "ka3": start[1] * true["ka3"]})
-    lco = LCOData.from_dataset(data, outputs=("h",))
-    res = whole_diagram_update(s, p0, ("ka2", "ka3"), lco)
+    lco = LCOData.from_dataset(data)
+    res = whole_diagram_update(s, p0, ("ka2", "ka3"), lco, outputs=("h",))
     br = model_branch(s, res.p, "U", param_range=(14.0, 20.5))
     folds = br.special("cycle_fold")
     ih, ia = s.state_index("h"), s.state_index("alpha")

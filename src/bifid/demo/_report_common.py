@@ -25,7 +25,7 @@ def finish_report(rep, out: Path, model, summary: dict[str, Any], settings: dict
 
     sec = rep.section("Model")
     try:
-        params = model.parameters()
+        params = model.summary()["parameters"]
     except BifidError:
         params = {}
     sec.append(rep.code({"parameters": params, "timings_s": summary["timings_s"],
