@@ -1,16 +1,15 @@
 """Worked example of docs/data-formats.md: import the real flutter-rig CBC runs and look at them.
 
 Run from the repository root:  .venv/bin/python docs/examples/data_import.py
-(needs ../shared/data; writes out/cbc_model1.nc and docs/figures/data_import_cbc_model1.png).
+(needs ../shared/data; writes cbc_model1.nc and data_import_cbc_model1.png into out/, or
+into $BIFID_EXAMPLE_OUT when set).
 """
 
 from __future__ import annotations
 
+import os
 from pathlib import Path
 
-import matplotlib
-
-matplotlib.use("Agg")
 import matplotlib.pyplot as plt
 import numpy as np
 
@@ -27,7 +26,7 @@ DATA = ROOT.parent / "shared" / "data" / "flutter_rig"
 
 
 def main() -> None:
-    out = ROOT / "out"
+    out = Path(os.environ.get("BIFID_EXAMPLE_OUT", ROOT / "out"))
     out.mkdir(exist_ok=True)
     # 1. import (what `bifid import ../shared/data/flutter_rig/cbc_model1 --out ...` does)
     ds = import_files([DATA / "cbc_model1"])
@@ -60,7 +59,7 @@ def main() -> None:
     axes[2].legend(frameon=False, fontsize=8)
     axes[2].grid(alpha=0.3)
     fig.suptitle("Flutter rig, set-up 1: limit cycles measured by PP-CBC (bifid import)")
-    path = ROOT / "docs" / "figures" / "data_import_cbc_model1.png"
+    path = out / "data_import_cbc_model1.png"
     fig.savefig(path, dpi=110)
     print(f"wrote {out / 'cbc_model1.nc'} and {path}")
 

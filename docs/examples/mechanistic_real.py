@@ -4,11 +4,13 @@ Run from the repository root (needs ``../shared/data``; ~3 min on a loaded 2-cor
 
     .venv/bin/python docs/examples/mechanistic_real.py
 
-Writes ``docs/figures/mechanistic_example.png`` and prints a table of the stages.
+Writes ``mechanistic_example.png`` into ``out/`` (or ``$BIFID_EXAMPLE_OUT``) and prints a table
+of the stages.
 """
 
 from __future__ import annotations
 
+import os
 import warnings
 from pathlib import Path
 
@@ -58,7 +60,8 @@ print(model.identifiability_["statement"])
 
 # 3. Predicted diagram against the measurements
 diagram = model.predict_diagram(range=(12.0, 19.0))
-out = ROOT / "docs" / "figures" / "mechanistic_example.png"
+out = Path(os.environ.get("BIFID_EXAMPLE_OUT", ROOT / "out")) / "mechanistic_example.png"
+out.parent.mkdir(exist_ok=True)
 save_figure(plot_diagram(diagram, data.diagram(), labels=["identified model", "measured"],
                          signals=["h"], title="Flutter rig set-up 1: identified model"), out)
 print("figure:", out, "| cycle fold", np.round(model.cycle_fold_, 2), "m/s")

@@ -397,6 +397,9 @@ def save_model(
 ) -> Path:
     """Save a model as ``directory/model.json`` + ``directory/arrays.npz``.
 
+    Both files are written atomically, arrays first; ``model.json`` records the SHA-256 of
+    ``arrays.npz`` so a pair left inconsistent by an interruption is detected on load.
+
     Parameters
     ----------
     directory
@@ -409,9 +412,6 @@ def save_model(
         Numeric arrays (no object dtype), stored with :func:`numpy.savez`.
     settings
         Everything that generated the model (data files, options, seeds).
-
-    Both files are written atomically, arrays first; ``model.json`` records the SHA-256 of
-    ``arrays.npz`` so a pair left inconsistent by an interruption is detected on load.
 
     Returns
     -------
