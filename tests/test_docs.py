@@ -22,7 +22,14 @@ def test_mkdocs_build_strict(tmp_path):
     import yaml
 
     nav = yaml.safe_load((ROOT / "mkdocs.yml").read_text())["nav"]
-    pages = [next(iter(item.values())) for item in nav]
+
+    def flatten(items):
+        for item in items:
+            value = next(iter(item.values()))
+            yield from flatten(value) if isinstance(value, list) else [value]
+
+    pages = list(flatten(nav))
+    assert any(p.startswith("api/") for p in pages)
     for page in pages:
         html = tmp_path / (page[:-3] + "/index.html" if page != "index.md" else "index.html")
         assert html.exists(), page
