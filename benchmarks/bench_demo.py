@@ -1,5 +1,5 @@
 #!/usr/bin/env python
-"""The demos end to end (issue 7): wall time per stage, the cached second run, the checks.
+"""The demos end to end: wall time per stage, the cached second run, the checks.
 
 Runs ``bifid demo flutter`` and ``bifid demo forced`` into fresh temporary directories (each
 in its own process, as a user would), then once more to time the cached re-run, renders
@@ -40,7 +40,7 @@ def main() -> int:
     args = ap.parse_args()
     from bifid.report.render import check_report, find_chromium
 
-    lines = ["## demo — `bifid demo flutter|forced` end to end (issue 7)", "",
+    lines = ["## demo — `bifid demo flutter|forced` end to end", "",
              "Fresh output directory, each demo in its own process (JIT compilation included; "
              "the persistent compilation cache may be warm), then a second run in the same "
              "directory (every stage reused from the cache). Limit: 10 min on 2 cores.", "",

@@ -331,11 +331,6 @@ def test_model_files_that_are_fifos(inside, tmp_path):
     assert_refused(run(["predict", model, "--range", "0", "1", "--json"], timeout=30.0), 2)
 
 
-@pytest.mark.xfail(
-    strict=True,
-    reason="system files are opened without checking that they "
-    "are regular files (bifid.io.check_input_file), so a FIFO blocks the reader",
-)
 def test_system_file_that_is_a_fifo(tmp_path):
     """Check a SYSTEM path that is a FIFO is refused, not read (it would block)."""
     fifo = tmp_path / "system.toml"

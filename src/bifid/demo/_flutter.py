@@ -63,9 +63,6 @@ class FlutterDemoSettings:
                 "mechanistic": mech}
 
 
-# thresholds of the error table: issue 5's numbers, doubled because the data are noisy
-
-
 def run_flutter_demo(out: Path, settings: FlutterDemoSettings | None = None, *,
                      refresh: bool = False, progress: bool = True) -> dict[str, Any]:
     """Run (or reuse) every stage and write ``out/report.html``; returns the summary."""

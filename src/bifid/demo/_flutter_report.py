@@ -6,11 +6,8 @@ import math
 from pathlib import Path
 from typing import Any
 
-import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure
 
 from bifid.demo._checks import FLUTTER_CHECKS as CHECKS
 from bifid.demo._report_common import check, finish_report
@@ -92,7 +89,8 @@ def diagram_figure(model, data, truth, tarr, path: Path, mech=None) -> Path:
            float(truth["hopf"]["U"]) + 0.4)
     pred = {**model.predict_diagram(range=rng, n_points=160).to_json(),
             "band": model.ensemble_spread(rng, n_points=80)}
-    fig, axes = plt.subplots(1, 2, figsize=(11, 4.2))
+    fig = Figure(figsize=(11, 4.2))
+    axes = fig.subplots(1, 2)
     sel = tarr["stable"].astype(bool)
     for ax, s in zip(axes, SIGNALS, strict=True):
         for st, style in ((True, STABLE), (False, UNSTABLE)):
@@ -151,7 +149,8 @@ def portraits_figure(model, data, path: Path, n_panels: int = 3) -> Path:
     pick = [speeds[i] for i in np.unique(np.linspace(0, len(speeds) - 1, n_panels).astype(int))]
     names = list(model.signal_names_)
     ih, ia = names.index("h"), names.index("alpha")
-    fig, axes = plt.subplots(1, len(pick), figsize=(4.2 * len(pick), 3.9), squeeze=False)
+    fig = Figure(figsize=(4.2 * len(pick), 3.9))
+    axes = fig.subplots(1, len(pick), squeeze=False)
     for ax, U in zip(axes[0], pick, strict=True):
         for r in recs:
             if abs(r.param - U) > 1e-6:
@@ -181,7 +180,8 @@ def series_figure(model, truth, tarr, rows, path: Path) -> Path:
     names = list(model.signal_names_)
     mid = sorted({r["U"] for r in rows})
     U = mid[len(mid) // 2]
-    fig, axes = plt.subplots(2, 2, figsize=(11, 5.6), sharex=True)
+    fig = Figure(figsize=(11, 5.6))
+    axes = fig.subplots(2, 2, sharex=True)
     for j, branch in enumerate(("stable", "unstable")):
         i = next((k for k, r in enumerate(rows) if r["U"] == U and r["branch"] == branch), None)
         if i is None or rows[i].get("model") is None:

@@ -27,9 +27,6 @@ from bifid.errors import ConvergenceError, ConvergenceWarning
 
 __all__ = ["ForcedDemoSettings", "run_forced_demo"]
 
-# limits of the error table (issue 6's numbers, doubled for noisy CBC data)
-
-
 @dataclass(frozen=True)
 class ForcedDemoSettings:
     """What the forced demo does (every field enters the cache keys of its stages)."""

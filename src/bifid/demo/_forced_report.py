@@ -7,10 +7,8 @@ from pathlib import Path
 from typing import Any
 
 import matplotlib
-
-matplotlib.use("Agg")
-import matplotlib.pyplot as plt
 import numpy as np
+from matplotlib.figure import Figure
 
 from bifid.demo._checks import FORCED_CHECKS as CHECKS
 from bifid.demo._report_common import check, finish_report
@@ -83,7 +81,8 @@ def _band(ax, br, color) -> None:
 
 def frc_figure(result, data, truth, tarr, path: Path) -> Path:
     """Truth FRCs and backbone, model FRCs with bands, and the measured S-curve points."""
-    fig, ax = plt.subplots(figsize=(8.5, 5.2))
+    fig = Figure(figsize=(8.5, 5.2))
+    ax = fig.subplots()
     for i, tf in enumerate(truth["frcs"]):
         c = COLORS[i % len(COLORS)]
         om, a, st = (tarr[f"frc{i}_omega"], tarr[f"frc{i}_amplitude"],
@@ -124,10 +123,11 @@ def frc_figure(result, data, truth, tarr, path: Path) -> Path:
 
 def scurve_figure(data, tarr, cfg, path: Path) -> Path:
     """The measured S-curves over the true ones (CBC accuracy at a glance)."""
-    fig, ax = plt.subplots(figsize=(8.5, 4.6))
+    fig = Figure(figsize=(8.5, 4.6))
+    ax = fig.subplots()
     curves = data["curve"].values
     for i, om in enumerate(cfg.omegas):
-        c = plt.cm.viridis(i / max(len(cfg.omegas) - 1, 1))
+        c = matplotlib.colormaps["viridis"](i / max(len(cfg.omegas) - 1, 1))
         if f"sc{i}_forcing" in tarr:
             f, a = tarr[f"sc{i}_forcing"], tarr[f"sc{i}_amplitude"]
             st = tarr[f"sc{i}_stable"].astype(bool)

@@ -41,8 +41,8 @@ def flutter_truth(directory: Path, param_range: tuple[float, float],
     ``[(U, stable), ...]``; also the exact amplitudes of both LCOs at ``measured_speeds``
     (to judge the measurements themselves).
     """
-    from bifid.continuation.truth import correct_orbit
     from bifid.continuation import continue_from_hopf
+    from bifid.continuation.truth import correct_orbit
     from bifid.signal import max_abs
     from bifid.systems import get_system
 

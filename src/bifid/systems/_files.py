@@ -11,6 +11,7 @@ from __future__ import annotations
 import contextvars
 import hashlib
 import importlib.util
+import stat as stat_mode
 import sys
 import traceback
 from collections.abc import Callable
@@ -53,6 +54,9 @@ def systems_in_file(path: str | Path) -> dict[str, System]:
             f"{path}: no such system file (give a registered system name, or the path of a "
             ".py or .toml system file)."
         ) from None
+    if not stat_mode.S_ISREG(stat.st_mode):
+        # checked before opening: a FIFO would block the reader, a device never ends
+        raise BifidInputError(f"{path}: a system file must be a regular file (this is not).")
     stamp = (stat.st_mtime_ns, stat.st_size)
     cached = _CACHE.get(resolved)
     if cached is not None and cached[0] == stamp:
