@@ -121,8 +121,25 @@ def _extra(value: Mapping[str, Any] | None) -> dict[str, ExtraValue]:
     return out
 
 
+class _Sampled:
+    """Sample count and times of a record with ``signals`` sampled at ``sample_rate``."""
+
+    signals: np.ndarray
+    sample_rate: float
+
+    @property
+    def n_samples(self) -> int:
+        """Number of samples."""
+        return int(self.signals.shape[0])
+
+    @property
+    def time(self) -> np.ndarray:
+        """Sample times ``k / sample_rate`` [s]."""
+        return np.arange(self.n_samples) / self.sample_rate
+
+
 @dataclasses.dataclass
-class LCORecord:
+class LCORecord(_Sampled):
     """One limit cycle of an autonomous system, sampled at a fixed parameter value.
 
     Parameters
@@ -168,23 +185,13 @@ class LCORecord:
         self.extra = _extra(self.extra)
 
     @property
-    def n_samples(self) -> int:
-        """Number of samples."""
-        return int(self.signals.shape[0])
-
-    @property
-    def time(self) -> np.ndarray:
-        """Sample times ``k / sample_rate`` [s]."""
-        return np.arange(self.n_samples) / self.sample_rate
-
-    @property
     def amplitude(self) -> np.ndarray:
         """``max_t |x_s(t)|`` per signal (thesis eq. 6.5)."""
         return np.max(np.abs(self.signals), axis=0)
 
 
 @dataclasses.dataclass
-class ForcedRecord:
+class ForcedRecord(_Sampled):
     """One steady periodic response of a harmonically forced system.
 
     Parameters
@@ -255,13 +262,3 @@ class ForcedRecord:
             self.curve = int(c)
         self.curve = int(self.curve)
         self.extra = _extra(self.extra)
-
-    @property
-    def n_samples(self) -> int:
-        """Number of samples."""
-        return int(self.signals.shape[0])
-
-    @property
-    def time(self) -> np.ndarray:
-        """Sample times ``k / sample_rate`` [s]."""
-        return np.arange(self.n_samples) / self.sample_rate
