@@ -141,7 +141,9 @@ def orbit_branch(system: System, param: str, p, run: AdaptiveRun, options: Conti
     params = ys[:, M * n + 1]
     fl = _branch_floquet(system, p, idx, run, n)
     amps = np.array([max_abs(o) for o in orbits])
-    centred = np.array([_centred(o) for o in orbits])
+    # per state, about the orbit's mean (as a rig measures it)
+    centred_states = np.array([max_abs(o - o.mean(axis=0)) for o in orbits])
+    centred = centred_states.max(axis=1) if len(orbits) else np.zeros(0)
     zero = centred <= 1e-12 * max(1.0, float(np.max(np.abs(orbits))))
     findings = Findings()
     ctx = BracketContext(system=system, param=param, p=p, idx=idx, run=run,
@@ -163,7 +165,7 @@ def orbit_branch(system: System, param: str, p, run: AdaptiveRun, options: Conti
         special_points=findings.sorted_points(),
         data={"period": periods, "amplitude": amps,
               # about the orbit's mean, as a rig measures it (offsets removed)
-              "amplitude_centred": centred,
+              "amplitude_centred": centred_states,
               "floquet": fl.multipliers, "floquet_log": fl.log_moduli,
               "floquet_max": fl.floquet_max, "spectral_tail": np.asarray(run.tails),
               "n_mesh": meshes},
