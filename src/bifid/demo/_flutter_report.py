@@ -56,14 +56,14 @@ def compare(model, truth: dict[str, Any], tarr: dict[str, np.ndarray]) -> dict[s
         row = {"U": tp["U"], "branch": branch, "truth": {s: tp[s] for s in SIGNALS},
                "truth_omega": tp["omega"]}
         try:
+            orb = model.predict_orbit(tp["U"], stable=tp["stable"], n_points=256)
             amp = model.predict_amplitude([tp["U"]], stable=tp["stable"])[0]
-            names = list(model.signal_names_)
+            names = list(orb.signal_names)
             row["model"] = {s: float(amp[names.index(s)]) for s in SIGNALS}
-            row["model_omega"] = float(model.predict_frequency([tp["U"]], stable=tp["stable"])[0])
+            row["model_omega"] = 2 * math.pi / orb.period
             row["amplitude_rel"] = max(abs(row["model"][s] / tp[s] - 1) for s in SIGNALS)
             row["frequency_rel"] = abs(row["model_omega"] / tp["omega"] - 1)
-            orb = vars(model.predict_orbit(tp["U"], stable=tp["stable"], n_points=256))
-            z = orb["signals"][:, [names.index(s) for s in SIGNALS]]
+            z = np.column_stack([orb.signal(s) for s in SIGNALS])
             row["series_rel"] = _aligned_error(z, tarr["test_orbits"][i])
         except BifidError as exc:  # the model has no such cycle: a failed prediction
             row.update(model=None, amplitude_rel=math.inf, frequency_rel=math.inf,
@@ -147,8 +147,6 @@ def portraits_figure(model, data, path: Path, n_panels: int = 3) -> Path:
     recs = lco_records(data)
     speeds = sorted({round(float(r.param), 6) for r in recs})
     pick = [speeds[i] for i in np.unique(np.linspace(0, len(speeds) - 1, n_panels).astype(int))]
-    names = list(model.signal_names_)
-    ih, ia = names.index("h"), names.index("alpha")
     fig = Figure(figsize=(4.2 * len(pick), 3.9))
     axes = fig.subplots(1, len(pick), squeeze=False)
     for ax, U in zip(axes[0], pick, strict=True):
@@ -160,9 +158,9 @@ def portraits_figure(model, data, path: Path, n_panels: int = 3) -> Path:
             ax.plot(r.signals[:n, 0], r.signals[:n, 1], ".", ms=1.2,
                     color="tab:blue" if st else "tab:red", alpha=0.35)
             try:
-                orb = vars(model.predict_orbit(U, stable=st))
-                z = orb["signals"]
-                ax.plot(np.r_[z[:, ih], z[0, ih]], np.r_[z[:, ia], z[0, ia]],
+                orb = model.predict_orbit(U, stable=st)
+                h, a = orb.signal("h"), orb.signal("alpha")
+                ax.plot(np.r_[h, h[0]], np.r_[a, a[0]],
                         color="k", lw=1.4, ls="-" if st else "--")
             except BifidError:
                 pass
@@ -177,7 +175,6 @@ def portraits_figure(model, data, path: Path, n_panels: int = 3) -> Path:
 
 def series_figure(model, truth, tarr, rows, path: Path) -> Path:
     """One period at untrained speeds, model against truth (phase-aligned)."""
-    names = list(model.signal_names_)
     mid = sorted({r["U"] for r in rows})
     U = mid[len(mid) // 2]
     fig = Figure(figsize=(11, 5.6))
@@ -186,8 +183,9 @@ def series_figure(model, truth, tarr, rows, path: Path) -> Path:
         i = next((k for k, r in enumerate(rows) if r["U"] == U and r["branch"] == branch), None)
         if i is None or rows[i].get("model") is None:
             continue
-        orb = vars(model.predict_orbit(U, stable=branch == "stable", n_points=256))
-        z = orb["signals"]
+        orb = model.predict_orbit(U, stable=branch == "stable", n_points=256)
+        names = list(orb.signal_names)
+        z = orb.signals
         tz = tarr["test_orbits"][i]
         n = z.shape[0]
         c = np.fft.rfft(tz, axis=0)
