@@ -9,12 +9,13 @@ form. The flutter model's runs (eq. 4.10, ±30 % starts, the real rig) are in
 
 from __future__ import annotations
 
+import dataclasses
 import math
 
 import numpy as np
 import pytest
 
-from bifid.errors import BifidInputError, NotFittedError
+from bifid.errors import BifidInputError, ConvergenceError, NotFittedError
 from bifid.identify import LCOData, MechanisticModel, load
 from bifid.identify.mechanistic import (
     OrbitSet,
@@ -173,7 +174,7 @@ def test_lco_data_from_real_cbc_dataset(shared_data) -> None:
 def test_fit_save_load_predict_cli(tmp_path, hopf, orbits, bifid_cli) -> None:
     """Check fit / save / load / predict through the CLI on a dataset sampled from the true
     model's orbits: JSON keys of the contract, recovered parameters, Hopf point and fold,
-    the refusal of a level without calibrated intervals, and the exit codes of bad input."""
+    the refusal of a level outside (0, 1), and the exit codes of bad input."""
     from bifid.data import LCORecord, lco_dataset, save_dataset
 
     o = orbits["orbits"]
@@ -250,8 +251,8 @@ def test_fit_save_load_predict_cli(tmp_path, hopf, orbits, bifid_cli) -> None:
     assert pred["hopf"][0]["param"] == pytest.approx(0.0, abs=1e-8)
     assert pred["hopf"][0]["criticality"] == "subcritical"
     assert pred["cycle_folds"][0]["param"] == pytest.approx(-(a2**2) / (4 * q5), abs=1e-6)
-    r = bifid_cli("predict", out, "--range", "-0.3", "0.1", "--level", "0.95")
-    assert r.code == 2 and "no calibrated intervals" in r.stderr
+    r = bifid_cli("predict", out, "--range", "-0.3", "0.1", "--level", "1.5")
+    assert r.code == 2 and "level" in r.stderr
     r = bifid_cli(
         "fit", "mechanistic", path, "--model", "hopf", "--free", "nope", "--out", tmp_path / "m2"
     )
@@ -270,3 +271,45 @@ def test_fit_save_load_predict_cli(tmp_path, hopf, orbits, bifid_cli) -> None:
         tmp_path / "m3",
     )
     assert r.code == 2 and "free decay" in r.stderr
+
+
+def test_fit_cli_free_decay_options_are_checked(tmp_path, shared_data, bifid_cli) -> None:
+    """The free decay's columns and stored scalars map onto the model only as the options say."""
+    lco = shared_data / "flutter_rig" / "cbc_model1"
+    decay = shared_data / "flutter_rig" / "free_decay" / "model1_free_decay.mat"
+    base = ("fit", "mechanistic", *sorted(lco.glob("*.mat"))[:1], "--model", "flutter")
+    base = (*base, "--free", "ka2,ka3", "--free-decay", decay, "--out", tmp_path / "m")
+    r = bifid_cli(*base)
+    assert r.code == 2 and "--linear-outputs" in r.stderr
+    r = bifid_cli(*base, "--linear-outputs", "h,alpha", "--file-params", "I__alpha=Ia,nope=ka")
+    assert r.code == 2 and "no scalar named nope" in r.stderr
+    r = bifid_cli(*base, "--linear-outputs", "h,alpha", "--file-params", "I__alpha=nope")
+    assert r.code == 2 and "nope" in r.stderr
+    assert not (tmp_path / "m").exists()
+
+
+def test_orbits_ignore_a_branch_that_collapsed_onto_the_equilibrium(hopf, data, orbits) -> None:
+    """A branch whose last steps fell onto the equilibrium (a constant solves the collocation
+    equations anywhere) matches only its genuine orbits: the unstable cycles are found with
+    their exact amplitudes, the stable ones are reported missing rather than sought on the
+    collapsed segment."""
+    br = orbits["branch"]
+    (fold,) = br.special("cycle_fold")
+    k = fold.index - 1  # the unstable side only: no fold, no stable cycle on the branch
+    sols = np.asarray(br.solutions)[:k]
+    flat = np.zeros((2, sols.shape[1]))  # mesh values and period of the equilibrium
+    flat[:, -1] = 2 * np.pi
+    broken = dataclasses.replace(
+        br,
+        params=np.concatenate([np.asarray(br.params)[:k], [-0.3, 0.0]]),
+        solutions=np.vstack([sols, flat]),
+        stable=np.concatenate([np.asarray(br.stable)[:k], [True, True]]),
+        special_points=[],
+    )
+    o = OrbitSet(hopf, "mu", 16, ("u1",))
+    matched = o.match(broken, data, orbits["p"], skip_missing=True)
+    reachable = (STABLE == 0) & (MU > np.asarray(br.params)[k - 1])
+    np.testing.assert_array_equal(matched, np.flatnonzero(reachable))
+    np.testing.assert_allclose(o.amplitudes()[:, 0], radius(MU[reachable], False), rtol=1e-10)
+    with pytest.raises(ConvergenceError, match=r"has no (un)?stable periodic orbit"):
+        OrbitSet(hopf, "mu", 16, ("u1",)).match(broken, data, orbits["p"])

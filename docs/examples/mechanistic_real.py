@@ -1,12 +1,15 @@
 """Three-stage mechanistic identification of the flutter rig (thesis ch. 4) from the raw files.
 
-Run from the repository root (needs ``../shared/data``; ~3 min on a loaded 2-core machine):
+Run from the repository root (needs ``../shared/data``; several minutes of CPU time, most in the
+continuation of the model's orbit branches between the steps of the whole-diagram stage):
 
     .venv/bin/python docs/examples/mechanistic_real.py
 
 Writes ``mechanistic_example.png`` into ``out/`` (or ``$BIFID_EXAMPLE_OUT``) and prints a table
 of the stages.
 """
+
+# bifid-example: slow
 
 from __future__ import annotations
 

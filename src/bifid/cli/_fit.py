@@ -306,30 +306,60 @@ def fit_forced_cmd(
         )
 
 
-# scalars stored in the flutter rig's free-decay files -> the flutter model's parameters
-RIG_GUESSES = {
-    "I__alpha": "Ia",
-    "c__alpha": "ca",
-    "c__h": "ch",
-    "k__alpha": "ka",
-    "k__h": "kh",
-    "x__alpha": "xa",
-    "m": "mw",
-    "m__T": "mT",
-    "b": "b",
-    "a": "a",
-    "rho": "rho",
-}
-
-
-def _ties(items: list[str] | None) -> dict[str, str]:
+def _pairs(items: list[str] | None, option: str, example: str) -> dict[str, str]:
+    """``A=B`` items of a repeatable option (each may hold several, comma-separated)."""
     out = {}
-    for item in items or []:
-        dep, sep, src = item.partition("=")
-        if not sep or not dep.strip() or not src.strip():
-            raise BifidInputError(f"--tie expects DEPENDENT=SOURCE (e.g. ka=Ia), got {item!r}.")
-        out[dep.strip()] = src.strip()
+    for item in (part for it in items or [] for part in it.split(",") if part.strip()):
+        key, sep, value = item.partition("=")
+        if not sep or not key.strip() or not value.strip():
+            raise BifidInputError(f"{option} expects NAME=NAME (e.g. {example}), got {item!r}.")
+        out[key.strip()] = value.strip()
     return out
+
+
+def _mechanistic_start(
+    model: str,
+    path: Path | None,
+    linear_outputs: str | None,
+    file_params: list[str] | None,
+    sets: list[str] | None,
+) -> tuple[Any, dict[str, float]]:
+    """The free-decay record at ``path`` and the starting parameters of the fit.
+
+    ``--file-params`` maps the name of a scalar stored in the file to a parameter of the
+    model (the file's other scalars are not used); ``--set`` overrides come last.
+    """
+    from bifid.systems import get_system
+
+    system = get_system(model)
+    if system.kind != "autonomous":
+        raise BifidInputError(
+            f"{model!r} is a forced system; mechanistic fits need a Hopf "
+            "bifurcation of an autonomous system."
+        )
+    mapping = _pairs(file_params, "--file-params", "I__alpha=Ia")
+    fd, params = None, {}
+    if path is None and mapping:
+        raise BifidInputError("--file-params needs --free-decay (the file that holds them).")
+    if path is not None:
+        from bifid.data import load_free_decay
+
+        if not linear_outputs:
+            raise BifidInputError(
+                "--free-decay needs --linear-outputs: the states its columns record "
+                "(e.g. h,alpha for heave and pitch)."
+            )
+        fd = load_free_decay(path)
+        missing = sorted(set(mapping) - set(fd.guesses))
+        if missing:
+            raise BifidInputError(
+                f"{path} stores no scalar named {', '.join(missing)} (it stores "
+                f"{', '.join(sorted(fd.guesses)) or 'none'}); fix --file-params."
+            )
+        for name in mapping.values():
+            system.index(name)
+        params = {dst: float(fd.guesses[src]) for src, dst in mapping.items()}
+    return fd, {**params, **parse_sets(sets)}
 
 
 @fit_app.command("mechanistic")
@@ -349,8 +379,21 @@ def fit_mechanistic_cmd(
     ],
     free_decay: Annotated[
         Path | None,
+        typer.Option("--free-decay", help="Free-decay record of the linear stage (rig .mat file)."),
+    ] = None,
+    linear_outputs: Annotated[
+        str | None,
         typer.Option(
-            "--free-decay", help="Free-decay record for the linear stage (flutter rig .mat file)."
+            "--linear-outputs",
+            help="States recorded in the free decay, in its column order (e.g. h,alpha).",
+        ),
+    ] = None,
+    file_params: Annotated[
+        list[str] | None,
+        typer.Option(
+            "--file-params",
+            help="FILE_NAME=PARAMETER: a scalar stored in the free-decay file used as the "
+            "model's parameter (repeatable or comma-separated, e.g. I__alpha=Ia,c__h=ch).",
         ),
     ] = None,
     linear_free: Annotated[
@@ -386,13 +429,6 @@ def fit_mechanistic_cmd(
     decay_start: Annotated[
         str, typer.Option("--decay-start", help="Start of the free decay: 'release' or seconds.")
     ] = "release",
-    file_guesses: Annotated[
-        bool,
-        typer.Option(
-            "--file-guesses/--no-file-guesses",
-            help="Use the rig file's stored values as starting/measured parameters.",
-        ),
-    ] = True,
     sets: Annotated[
         list[str] | None,
         typer.Option("--set", help="Override a system parameter, NAME=VALUE (repeatable)."),
@@ -405,26 +441,8 @@ def fit_mechanistic_cmd(
     """Identify a physical model with a Hopf bifurcation in three stages (thesis ch. 4)."""
     with user_errors():
         from bifid.identify import MechanisticModel
-        from bifid.systems import get_system
 
-        system = get_system(model)
-        if system.kind != "autonomous":
-            raise BifidInputError(
-                f"{model!r} is a forced system; mechanistic fits need a Hopf "
-                "bifurcation of an autonomous system."
-            )
-        params: dict[str, float] = {}
-        decay = None
-        if free_decay is not None:
-            from bifid.data import load_free_decay
-
-            fd = load_free_decay(free_decay)
-            if file_guesses and system.name == "flutter":
-                params.update(
-                    {RIG_GUESSES[k]: float(v) for k, v in fd.guesses.items() if k in RIG_GUESSES}
-                )
-            decay = fd
-        params.update(parse_sets(sets))
+        decay, params = _mechanistic_start(model, free_decay, linear_outputs, file_params, sets)
         start = _number_or(decay_start, ("release",), "--decay-start")
         est = MechanisticModel(
             model,
@@ -436,9 +454,8 @@ def fit_mechanistic_cmd(
             if stages.strip().lower() == "auto"
             else _names(stages, "--stages"),
             linear_free=_names(linear_free, "--linear-free") if linear_free else (),
-            # the rig's free-decay files hold heave and pitch: the flutter model's h, alpha
-            linear_outputs=("h", "alpha") if decay is not None else None,
-            linear_ratios=_ties(tie),
+            linear_outputs=_names(linear_outputs, "--linear-outputs") if linear_outputs else None,
+            linear_ratios=_pairs(tie, "--tie", "ka=Ia"),
             param_ref=param_ref,
             n_mesh=mesh,
             gradient=gradient,

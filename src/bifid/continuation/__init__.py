@@ -21,7 +21,12 @@ from bifid.continuation._equilibria import equilibria, equilibrium_problem
 from bifid.continuation._floquet import floquet, floquet_multipliers, monodromy
 from bifid.continuation._forced import forced_problem, frc, scurve
 from bifid.continuation._fourier import fourier_differentiation_matrix, fourier_grid
-from bifid.continuation._hopf import first_lyapunov_coefficient, locate_hopf
+from bifid.continuation._hopf import (
+    critical_pair,
+    first_lyapunov_coefficient,
+    locate_hopf,
+    multilinear_forms,
+)
 from bifid.continuation._options import ContinuationOptions
 from bifid.continuation._palc import (
     AbstractCorrector,
@@ -69,6 +74,7 @@ __all__ = [
     "confirm",
     "continue_from_hopf",
     "correct",
+    "critical_pair",
     "equilibria",
     "equilibrium_problem",
     "first_lyapunov_coefficient",
@@ -81,6 +87,7 @@ __all__ = [
     "hopf_orbits",
     "locate_hopf",
     "monodromy",
+    "multilinear_forms",
     "orbit_problem",
     "palc",
     "periodic_orbits",

@@ -104,8 +104,11 @@ def _hopf_kernels(field: Callable):
 
 
 @functools.lru_cache(maxsize=32)
-def _multilinear(field: Callable):
-    """Jitted second and third derivatives ``B(x0,p;u,v)``, ``C(x0,p;u,v,w)`` of ``field``."""
+def multilinear_forms(field: Callable) -> tuple[Callable, Callable]:
+    """Jitted multilinear forms of ``field``: ``B(x0, p, u, v) = D²f(x0)[u, v]`` and
+    ``C(x0, p, u, v, w) = D³f(x0)[u, v, w]`` (nested forward-mode directional
+    derivatives; cached per field, parameters traced). These are the forms of
+    Kuznetsov's normal-form coefficients (``c1`` of the Hopf normal form)."""
 
     def dir1(x, p, u):
         return jax.jvp(lambda y: field(y, p), (x,), (u,))[1]
@@ -184,7 +187,7 @@ def first_lyapunov_coefficient(field: Callable, x: Array, p: Array, omega: float
         raise ConvergenceError("the first Lyapunov coefficient is undefined: the critical "
                                "eigenvalue is not simple")
     pv = pv / np.conj(pq)  # <p, q> = conj(p) . q = 1
-    Bj, Cj = _multilinear(field)
+    Bj, Cj = multilinear_forms(field)
 
     def B(u, v):
         return Bj(x, p, jnp.asarray(u), jnp.asarray(v))

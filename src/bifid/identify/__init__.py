@@ -1,6 +1,7 @@
 """Identification of models from bifurcation data (thesis ch. 4–6)."""
 
 from bifid.identify._base import DiagramQuery, Estimator, IdentifiedModel, Orbit
+from bifid.identify._intervals import Covariance, conformal_quantile, coverage_test
 from bifid.identify._persistence import load
 from bifid.identify._records import LCOData, as_lco_data
 from bifid.identify.forced_kernel import ForcedKernelModel, GPRegressor, HyperBounds, band_coverage
@@ -8,6 +9,7 @@ from bifid.identify.hopf_hybrid import HopfHybridModel
 from bifid.identify.mechanistic import LinearPEM, MechanisticModel
 
 __all__ = [
+    "Covariance",
     "DiagramQuery",
     "Estimator",
     "ForcedKernelModel",
@@ -21,5 +23,7 @@ __all__ = [
     "Orbit",
     "as_lco_data",
     "band_coverage",
+    "conformal_quantile",
+    "coverage_test",
     "load",
 ]

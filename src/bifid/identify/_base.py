@@ -41,6 +41,7 @@ import numpy as np
 
 from bifid.continuation import Diagram
 from bifid.errors import BifidInputError, NotFittedError
+from bifid.identify._intervals import check_level
 from bifid.identify._persistence import load_estimator, save_estimator
 
 __all__ = ["DiagramQuery", "Estimator", "IdentifiedModel", "Orbit"]
@@ -218,6 +219,8 @@ class IdentifiedModel(Estimator):
     kinds: ClassVar[tuple[str, ...]]
     #: what the model offers instead of calibrated intervals (said when ``level`` is asked)
     uncertainty_note: ClassVar[str] = "no uncertainty estimate"
+    #: whether ``predict_diagram(level=...)`` gives calibrated intervals
+    calibrated: ClassVar[bool] = False
 
     # ---------------------------------------------------------------------------- fit
     @abc.abstractmethod
@@ -267,15 +270,21 @@ class IdentifiedModel(Estimator):
         """
         self._check_fitted()
         query = self._query(kind, param, range, forcing, omega, n_points)
-        if level is not None:
-            lv = float(level)
-            if not 0.0 < lv < 1.0:
-                raise BifidInputError(f"level must lie in (0, 1), got {level!r}.")
+        lv = None if level is None else check_level(level)
+        if lv is not None and not self.calibrated:
             raise BifidInputError(
                 f"{type(self).__name__} has no calibrated intervals yet, so level={lv:g} "
                 f"cannot be honoured; predict without a level ({self.uncertainty_note})."
             )
-        return self._predict_diagram(query)
+        diagram = self._predict_diagram(query)
+        if lv is not None:
+            self._add_intervals(diagram, query, lv)
+        return diagram
+
+    def _add_intervals(self, diagram: Diagram, query: DiagramQuery, level: float) -> None:
+        """Fill the intervals of a predicted diagram at ``level`` and set ``diagram.level``
+        (models with :attr:`calibrated` intervals override this)."""
+        raise NotImplementedError
 
     def _query(self, kind, param, range_, forcing, omega, n_points) -> DiagramQuery:
         forcing = _positive("forcing", forcing)

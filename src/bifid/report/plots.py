@@ -154,7 +154,12 @@ def _draw_special(ax: Any, d: Diagram, b: Branch, signal: str | None, color: str
         if "param" in sp.intervals:
             lo, hi = sp.intervals["param"]
             xerr = [[max(xv - lo, 0.0)], [max(hi - xv, 0.0)]]
-        ax.errorbar([xv], [yv], xerr=xerr, fmt=marker, color="k", mfc=color, ms=7,
+        yerr = None
+        if "amplitude" in sp.intervals:
+            lo_a, hi_a = (np.atleast_1d(np.asarray(v, float)) for v in sp.intervals["amplitude"])
+            k = b.signals.index(signal) if (lo_a.size > 1 and signal in b.signals) else 0
+            yerr = [[max(yv - lo_a[k], 0.0)], [max(hi_a[k] - yv, 0.0)]]
+        ax.errorbar([xv], [yv], xerr=xerr, yerr=yerr, fmt=marker, color="k", mfc=color, ms=7,
                     capsize=3, zorder=5)
         name = sp.kind.replace("_", " ")
         ax.annotate(f"{name} {sp.param:.5g}", (xv, yv), textcoords="offset points",

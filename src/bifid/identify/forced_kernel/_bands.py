@@ -32,6 +32,17 @@ from bifid.identify.forced_kernel._state import ReducedFit
 __all__ = ["add_backbone_band", "add_frc_band", "add_scurve_band", "band_coverage"]
 
 
+def _band_meta(level: float, n_samples: int, seed: int, **extra: float) -> dict[str, Any]:
+    """``Branch.meta["band"]`` of a posterior-sample band."""
+    return {
+        "kind": "posterior samples",
+        "level": level,
+        "n_samples": n_samples,
+        "seed": seed,
+        **extra,
+    }
+
+
 def _quantiles(values: np.ndarray, level: float) -> np.ndarray:
     q = (1.0 - level) / 2.0
     with warnings.catch_warnings():
@@ -71,13 +82,7 @@ def add_frc_band(rf: ReducedFit, branch: Branch, n_samples: int, level: float, s
         sample_omega=o_s,
         sample_amplitude=r_s,
     )
-    branch.meta["band"] = {
-        "kind": "posterior samples",
-        "level": level,
-        "n_samples": n_samples,
-        "seed": seed,
-        "failed_fraction": float(np.mean(bad)),
-    }
+    branch.meta["band"] = _band_meta(level, n_samples, seed, failed_fraction=float(np.mean(bad)))
 
 
 def add_scurve_band(
@@ -92,12 +97,7 @@ def add_scurve_band(
     )
     g_s = np.sqrt(a_s**2 + (b_s - om) ** 2 * rho**2) / rf.forcing_scale
     branch.data.update(band_forcing=_quantiles(g_s, level), sample_forcing=g_s)
-    branch.meta["band"] = {
-        "kind": "posterior samples",
-        "level": level,
-        "n_samples": n_samples,
-        "seed": seed,
-    }
+    branch.meta["band"] = _band_meta(level, n_samples, seed)
 
 
 def add_backbone_band(
@@ -115,13 +115,9 @@ def add_backbone_band(
     tol = 1e-9 * max(abs(float(branch.meta.get("backbone_start", om[0]))), 1.0)
     om_s = np.where(res_s < tol, om_s, np.nan)
     branch.data.update(band_omega=_quantiles(om_s, level), sample_omega=om_s)
-    branch.meta["band"] = {
-        "kind": "posterior samples",
-        "level": level,
-        "n_samples": n_samples,
-        "seed": seed,
-        "failed_fraction": float(np.mean(np.isnan(om_s))),
-    }
+    branch.meta["band"] = _band_meta(
+        level, n_samples, seed, failed_fraction=float(np.mean(np.isnan(om_s)))
+    )
 
 
 def band_coverage(

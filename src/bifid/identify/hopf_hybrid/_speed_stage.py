@@ -210,6 +210,13 @@ def train_speed(
     timer.add("speed_phases", time.perf_counter() - t0)
     key = jax.random.key(seed + 1)
     fit = hs.profile_trainer(config)
+
+    def fit_profiles(stage, k, rho_s, targets_s, w, lam):
+        """Initialise one member's speed network and fit it to the profiles ``targets_s``."""
+        om0 = hs.init_speed_params(k, config, rho_s, prep.mu_t, targets_s, w)
+        args = (rho_s, prep.mu_t, targets_s, w, lam)
+        return timer.run(stage, fit, om0, *(jnp.asarray(a) for a in args))
+
     grid = [float(v) for v in regularization_grid]
     lam, cv = grid[0], {}
     if len(grid) > 1 and np.sum(active) >= 3:
@@ -218,19 +225,7 @@ def train_speed(
             held = []
             for i in np.nonzero(active)[0]:
                 w = weights * (np.arange(n) != i)
-                om0 = hs.init_speed_params(
-                    key, config, rho[primary], prep.mu_t, targets[primary], w
-                )
-                _, hist = timer.run(
-                    "speed_cv",
-                    fit,
-                    om0,
-                    jnp.asarray(rho[primary]),
-                    jnp.asarray(prep.mu_t),
-                    jnp.asarray(targets[primary]),
-                    jnp.asarray(w),
-                    jnp.asarray(value),
-                )
+                _, hist = fit_profiles("speed_cv", key, rho[primary], targets[primary], w, value)
                 held.append(float(np.asarray(hist)[-1, i]))
             score.append(float(np.mean(held)))
         lam = grid[int(np.argmin(score))]
@@ -244,17 +239,7 @@ def train_speed(
     refine = hs.series_trainer(config, n_steps) if config.n_refine > 0 else None
     members, losses = [], []
     for s, k in enumerate(jax.random.split(key, n_members)):
-        om0 = hs.init_speed_params(k, config, rho[s], prep.mu_t, targets[s], weights)
-        om, _ = timer.run(
-            "speed_profiles",
-            fit,
-            om0,
-            jnp.asarray(rho[s]),
-            jnp.asarray(prep.mu_t),
-            jnp.asarray(targets[s]),
-            jnp.asarray(weights),
-            jnp.asarray(lam),
-        )
+        om, _ = fit_profiles("speed_profiles", k, rho[s], targets[s], weights, lam)
         if refine is not None:
             om_r, res0, res1 = timer.run(
                 "speed_series",

@@ -174,15 +174,7 @@ def select_map_hyper(
         mask = active & (np.arange(n) != i)
         p0 = hm.initial_params(prep, mask, cfg, key, setup.criticality)
         for g, lam in enumerate(grid):
-            _, hist, _ = timer.run(
-                "map_cv",
-                train,
-                p0,
-                data,
-                jnp.asarray(mask, dtype=float),
-                jnp.asarray(lam),
-                jnp.asarray(total, dtype=jnp.int32),
-            )
+            _, hist, _ = _run_map(timer, "map_cv", train, p0, data, mask, lam, total)
             held[g, fi] = np.asarray(hist)[:, i]
     held = np.where(np.isfinite(held), held, np.inf)
     score = (np.median if cv_score == "median" else np.mean)(held, axis=1)  # (grid, T)
@@ -209,6 +201,28 @@ def select_map_hyper(
         "aggregate": cv_score,
     }
     return grid[g], stop, cv
+
+
+def _run_map(
+    timer: StageTimer,
+    stage: str,
+    train: Any,
+    p0: Any,
+    data: Any,
+    weights: np.ndarray,
+    lam: float,
+    n_iter: int,
+) -> Any:
+    """One timed run of the compiled map trainer (orbit ``weights``, L2 weight ``lam``)."""
+    return timer.run(
+        stage,
+        train,
+        p0,
+        data,
+        jnp.asarray(weights, dtype=float),
+        jnp.asarray(lam),
+        jnp.asarray(n_iter, dtype=jnp.int32),
+    )
 
 
 def cycle_sizes(mp: Any, cfg: hm.MapConfig, mu_t: np.ndarray, root: np.ndarray) -> np.ndarray:
@@ -252,15 +266,7 @@ def train_members(
     members, finals, per_orbit, ok = [], [], [], []
     for s in range(n_members):
         p0 = hm.initial_params(prep, active, cfg, keys[s], setup.criticality)
-        p, _, final = timer.run(
-            "map_ensemble",
-            train,
-            p0,
-            data,
-            jnp.asarray(active, dtype=float),
-            jnp.asarray(lam),
-            jnp.asarray(stop, dtype=jnp.int32),
-        )
+        p, _, final = _run_map(timer, "map_ensemble", train, p0, data, active, lam, stop)
         losses = np.asarray(evaluate(p, data))
         flat = np.concatenate([np.ravel(x) for x in jax.tree_util.tree_leaves(p)])
         members.append(jax.tree_util.tree_map(np.asarray, p))

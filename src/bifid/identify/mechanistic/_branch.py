@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from typing import Any
@@ -10,12 +11,13 @@ import jax.numpy as jnp
 import numpy as np
 
 from bifid.continuation import Branch, ContinuationOptions, hopf_orbits, locate_hopf
+from bifid.errors import ConvergenceWarning
 from bifid.identify.mechanistic._normal_form import HopfNormalForm
 from bifid.systems import System
 
 TWO_PI = 2.0 * math.pi
 
-__all__ = ["data_range", "hopf_summary", "model_branch", "orbit_options"]
+__all__ = ["collapse_index", "data_range", "hopf_summary", "model_branch", "orbit_options"]
 
 
 def orbit_options(lo: float, hi: float, max_steps: int) -> ContinuationOptions:
@@ -33,6 +35,24 @@ def data_range(param: np.ndarray) -> tuple[float, float]:
     return lo - 3.0 * span, hi + 0.5 * span
 
 
+def collapse_index(branch: Branch, n_states: int) -> int | None:
+    """Index of the first orbit of ``branch`` that has collapsed onto the equilibrium.
+
+    A constant solves the collocation equations at any parameter and period, so a
+    continuation step that overshoots a cycle fold can land on it; the branch then runs on
+    along the equilibrium. An orbit is collapsed when its size ``max_s ptp_t x_s(t)`` is
+    below ``1e-3`` of the largest size before it (None: no collapse).
+    """
+    M = int(branch.meta.get("n_mesh", 0))
+    sols = np.asarray(branch.solutions)
+    if M <= 0 or sols.shape[0] < 2:
+        return None
+    size = np.ptp(sols[:, : M * n_states].reshape(-1, M, n_states), axis=1).max(axis=1)
+    peak = np.maximum.accumulate(size)
+    bad = np.flatnonzero((size[1:] < 1e-3 * peak[:-1]) & (peak[:-1] > 0))
+    return int(bad[0]) + 1 if bad.size else None
+
+
 def model_branch(
     system: System,
     p: np.ndarray,
@@ -47,24 +67,41 @@ def model_branch(
 
     The Hopf point is located by :func:`bifid.continuation.locate_hopf` from ``guess``
     (default: the current parameter value), so no equilibrium continuation is needed. The
-    mesh stays at ``n_mesh`` (the resolution the identification works at).
+    mesh stays at ``n_mesh`` (the resolution the identification works at). A branch whose
+    orbits collapse onto the equilibrium (a step past a cycle fold, :func:`collapse_index`)
+    is continued again with at most 0.4 times the step; if it still collapses it is returned
+    with a :class:`~bifid.errors.ConvergenceWarning` (its orbits up to the collapse are
+    valid).
     """
     idx = system.index(param)
     lam0 = float(p[idx]) if guess is None else float(guess)
     sp = locate_hopf(system, param, np.zeros(system.n_states), lam0, jnp.asarray(p))
     lo, hi = param_range
     opts = orbit_options(min(lo, sp.param - 1e-6), max(hi, sp.param + 1e-6), max_steps)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return hopf_orbits(
-            system,
-            sp,
-            p=jnp.asarray(p),
-            n_mesh=n_mesh,
-            options=opts,
-            adapt=False,
-            resolution_tol=0.5,
-        )
+    for _ in range(2):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            branch = hopf_orbits(
+                system,
+                sp,
+                p=jnp.asarray(p),
+                n_mesh=n_mesh,
+                options=opts,
+                adapt=False,
+                resolution_tol=0.5,
+            )
+        k = collapse_index(branch, system.n_states)
+        if k is None:
+            return branch
+        opts = dataclasses.replace(opts, ds_max=opts.ds_max / 2.5, max_steps=3 * max_steps)
+    warnings.warn(
+        f"the periodic orbits born at the Hopf point ({param} = {sp.param:.6g}) collapse onto "
+        f"the equilibrium at {param} = {float(branch.params[k]):.6g}; the branch is valid "
+        "only before that point.",
+        ConvergenceWarning,
+        stacklevel=2,
+    )
+    return branch
 
 
 def hopf_summary(nf: HopfNormalForm) -> dict[str, Any]:

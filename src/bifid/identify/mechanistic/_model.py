@@ -9,6 +9,7 @@ system (:mod:`._predict`).
 from __future__ import annotations
 
 import math
+import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -16,8 +17,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from bifid.continuation import Diagram
-from bifid.errors import BifidInputError
+from bifid.errors import BifidInputError, ConvergenceError
 from bifid.identify._base import DiagramQuery, IdentifiedModel, Orbit
+from bifid.identify._intervals import Covariance
 from bifid.identify._persistence import register_model_type
 from bifid.identify._records import LCOData, as_lco_data
 from bifid.identify.mechanistic._branch import hopf_summary
@@ -31,6 +33,7 @@ from bifid.identify.mechanistic._predict import (
     orbit_samples,
     predicted_diagram,
 )
+from bifid.identify.mechanistic._uncertainty import add_intervals, parameter_covariance
 from bifid.identify.mechanistic._whole_diagram import whole_diagram_update
 from bifid.systems import System, get_system
 
@@ -94,9 +97,10 @@ class MechanisticModel(IdentifiedModel):
     model_type = "mechanistic"
     kinds = ("bifurcation",)
     uncertainty_note = (
-        "the linear stage reports standard errors in summary()['standard_errors']; "
-        "predicted diagrams carry no intervals"
+        "Gauss-Newton covariance of the free parameters, propagated to Hopf points, cycle "
+        "folds and orbit amplitudes by the delta method"
     )
+    calibrated = True
     _fitted_attribute = "p_"
 
     def __init__(
@@ -403,15 +407,64 @@ class MechanisticModel(IdentifiedModel):
         orbit's mean, the convention of the measured data the model was fitted to)."""
         return self._matched(values, stable).amplitudes()
 
+    def covariance(self) -> Covariance:
+        """Covariance of the fitted parameters: Gauss–Newton at the fit for the free ones, the
+        noise variance estimated from the amplitude residuals, with the linear stage's
+        uncertainty carried through (:func:`._uncertainty.parameter_covariance`); computed
+        once.
+
+        Raises
+        ------
+        BifidInputError
+            With no more measured amplitudes than free parameters.
+        """
+        self._check_fitted()
+        if getattr(self, "_covariance", None) is None:
+            self._covariance = parameter_covariance(
+                self._system(),
+                self.p_,
+                self.param_,
+                self.data_,
+                tuple(self.outputs_),
+                tuple(self.free),
+                self.n_mesh,
+                float(self.hopf_["param"]),
+                linear_errors=(self.stages_.get("linear") or {}).get("stderr"),
+                ties=dict(self.linear_ratios or {}),
+            )
+        return self._covariance
+
+    def _add_intervals(self, diagram: Diagram, query: DiagramQuery, level: float) -> None:
+        """Delta-method intervals on the predicted diagram (:func:`._uncertainty.add_intervals`),
+        with a warning where the prediction leaves the trained parameter range."""
+        lo, hi = float(np.min(self.data_.param)), float(np.max(self.data_.param))
+        if query.range is not None and (query.range[0] < lo or query.range[1] > hi):
+            warnings.warn(
+                f"the prediction over {self.param_} = {query.range[0]:g}..{query.range[1]:g} "
+                f"extrapolates beyond the trained range {lo:g}..{hi:g}: its intervals rest on "
+                "the model's form there, not on data.",
+                UserWarning,
+                stacklevel=3,
+            )
+        add_intervals(diagram, self._system(), self.p_, self.param_, self.covariance(), level)
+
     # -------------------------------------------------------------------------- summary
     def summary(self) -> dict[str, Any]:
-        """Fitted parameters (``parameters``, ``standard_errors`` of the linear stage), the
-        Hopf point, per-stage summaries, identifiability and ``losses`` (RMS amplitude
-        error of each stage's model over the measured LCOs)."""
+        """Fitted parameters (``parameters``), their ``standard_errors`` (linear stage:
+        prediction-error covariance; free parameters: Gauss–Newton covariance at the fit,
+        :meth:`covariance`), the Hopf point, per-stage summaries, identifiability and
+        ``losses`` (RMS amplitude error of each stage's model over the measured LCOs)."""
         self._check_fitted()
+        try:
+            cov = self.covariance()
+            errors = {**self.standard_errors_, **cov.standard_errors()}
+            noise = {"residual_std": cov.sigma, "dof": cov.dof}
+        except (BifidInputError, ConvergenceError) as exc:
+            errors, noise = dict(self.standard_errors_), {"error": str(exc)}
         return {
             "parameters": dict(self.params_),
-            "standard_errors": dict(self.standard_errors_),
+            "standard_errors": errors,
+            "noise": noise,
             "hopf": self.hopf_,
             "cycle_fold": self.cycle_fold_,
             "data_hopf": self.data_hopf_,

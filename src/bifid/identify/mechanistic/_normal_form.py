@@ -64,6 +64,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from bifid.continuation import critical_pair, multilinear_forms
 from bifid.errors import BifidInputError, ConvergenceError
 from bifid.systems import System, get_system
 
@@ -81,19 +82,11 @@ def _derivs(field: Callable):
     (compiling the whole ``c1`` expression as one graph takes minutes).
     """
 
+    # B(u, v) = D^2 f(x)[u, v], C(u, v, w) = D^3 f(x)[u, v, w]: continuation's forms
+    B, C = multilinear_forms(field)
+
     def jac(x, p):
         return jax.jacfwd(field)(x, p)
-
-    def d1(x, p, u):
-        return jax.jvp(lambda y: field(y, p), (x,), (u,))[1]
-
-    def B(x, p, u, v):
-        # B(u, v) = D^2 f(x)[u, v]
-        return jax.jvp(lambda y: d1(y, p, u), (x,), (v,))[1]
-
-    def C(x, p, u, v, w):
-        # C(u, v, w) = D^3 f(x)[u, v, w]
-        return jax.jvp(lambda y: B(y, p, u, v), (x,), (w,))[1]
 
     def dJ(x, p, dx, dp):
         # total derivative of J along (dx, dp)
@@ -109,8 +102,8 @@ def _derivs(field: Callable):
     return (
         jax.jit(jac),
         jax.jit(field),
-        jax.jit(B),
-        jax.jit(C),
+        B,
+        C,
         jax.jit(dJ),
         jax.jit(Bp),
         jax.jit(Cp),
@@ -313,19 +306,6 @@ class HopfNormalForm:
 
 
 # ----------------------------------------------------------------------- builders
-def _critical_pair(J: np.ndarray, omega_guess: float | None) -> tuple[complex, np.ndarray]:
-    w, V = np.linalg.eig(J)
-    if omega_guess is None:
-        cand = np.where(w.imag > 1e-10, np.abs(w.real), np.inf)
-        k = int(np.argmin(cand))
-    else:
-        k = int(np.argmin(np.abs(w - 1j * abs(omega_guess))))
-    lam, v = w[k], V[:, k]
-    if lam.imag < 0:
-        lam, v = np.conj(lam), np.conj(v)
-    return lam, v
-
-
 def _normalise(q: np.ndarray) -> np.ndarray:
     q = q / np.linalg.norm(q)
     k = int(np.argmax(np.abs(q)))
@@ -394,7 +374,7 @@ def hopf_normal_form(
     jac, f, B, C, dJ, _, _ = _derivs(sys_.field)
     xj = jnp.asarray(x)
     J = np.asarray(jac(xj, p_h))
-    lam, q = _critical_pair(J, float(sp.data["omega"]))
+    lam, q = critical_pair(J, float(sp.data["omega"]))
     omega = float(lam.imag)
     q = _normalise(q)
     wl, W = np.linalg.eig(J.T)

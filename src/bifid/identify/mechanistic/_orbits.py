@@ -37,6 +37,7 @@ from bifid.continuation import (
 )
 from bifid.errors import ConvergenceError
 from bifid.identify._records import UNKNOWN, LCOData
+from bifid.identify.mechanistic._branch import collapse_index
 from bifid.signal import evaluate_fourier, fourier_coefficients, max_abs
 from bifid.systems import System
 
@@ -147,7 +148,7 @@ class OrbitSet:
         amps: np.ndarray,
         fold_i: int | None,
     ) -> list[tuple[int, float, float]]:
-        params = np.asarray(branch.params)
+        params = np.asarray(branch.params)[: len(amps)]
         stab = np.asarray(branch.stable, dtype=bool)
         cands = []
         for i in range(len(params) - 1):
@@ -192,11 +193,15 @@ class OrbitSet:
             ``skip_missing``), or none has.
         """
         M, n = self.n_mesh, self.system.n_states
-        params = np.asarray(branch.params)
-        sols = self._on_mesh(branch)
+        # only the orbits before a collapse onto the equilibrium are on the branch
+        end = collapse_index(branch, n) or len(branch.params)
+        params = np.asarray(branch.params)[:end]
+        sols = self._on_mesh(branch)[:end]
         V0 = sols[:, : M * n].reshape(-1, M, n)[:, :, self._out[0]]
         amps = np.atleast_1d(max_abs((V0 - V0.mean(axis=1, keepdims=True)).T))
-        folds_i = sorted(sp.index for sp in branch.special_points if sp.kind == "cycle_fold")
+        folds_i = sorted(
+            sp.index for sp in branch.special_points if sp.kind == "cycle_fold" and sp.index < end
+        )
         hopf_start = branch.meta.get("start_kind") == "hopf"
         stab = np.asarray(branch.stable, dtype=bool)
         fold_i = folds_i[0] if (folds_i and hopf_start and not stab[1]) else None
