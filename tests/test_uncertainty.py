@@ -1,0 +1,198 @@
+"""Calibrated intervals: the shared statistics and the mechanistic model's delta method.
+
+The mechanistic checks use the ``hopf`` system (eq. 5.2), whose cycles are circles of radius
+``r² = (a2 ± sqrt(a2² + 4 q5 mu)) / (2 q5)`` with the cycle fold at ``mu_f = -a2²/(4 q5)``
+and ``r_f² = a2/(2 q5)``: the covariance and every propagated interval are recomputed here
+in closed form. The parametric bootstrap and a longer coverage run are in
+``tests/slow/test_uncertainty_calibration.py``.
+"""
+
+from __future__ import annotations
+
+import math
+import warnings
+
+import numpy as np
+import pytest
+import scipy.stats
+
+from bifid.errors import BifidInputError
+from bifid.identify import (
+    LCOData,
+    MechanisticModel,
+    conformal_quantile,
+    coverage_test,
+)
+
+MU = np.array([-0.2, -0.12, -0.05, -0.02, -0.22, -0.15, -0.05, 0.05])
+STABLE = np.array([0, 0, 0, 0, 1, 1, 1, 1])
+NOISE = 0.01
+
+
+def radius(mu, stable, a2=1.0, q5=1.0):
+    s = np.sqrt(a2**2 + 4 * q5 * np.asarray(mu))
+    return np.sqrt((a2 + np.where(stable, s, -s)) / (2 * q5))
+
+
+def radius_gradient(mu, stable, a2, q5):
+    """Analytic d r / d (a2, q5), shape (n, 2)."""
+    s = np.sqrt(a2**2 + 4 * q5 * mu)
+    sg = np.where(stable, 1.0, -1.0)
+    r2 = (a2 + sg * s) / (2 * q5)
+    d_a2 = (1 + sg * a2 / s) / (2 * q5)
+    d_q5 = (sg * 2 * mu / s) / (2 * q5) - r2 / q5
+    return np.column_stack([d_a2, d_q5]) / (2 * np.sqrt(r2))[:, None]
+
+
+def noisy_data(seed: int) -> LCOData:
+    rng = np.random.default_rng(seed)
+    amp = radius(MU, STABLE == 1) + NOISE * rng.standard_normal(MU.size)
+    return LCOData.from_amplitudes(MU, amp[:, None], STABLE, ("u1",), param_name="mu")
+
+
+def fit(seed: int) -> MechanisticModel:
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return MechanisticModel("hopf", ("a2", "q5"), stages=("whole_diagram",), n_mesh=16).fit(
+            noisy_data(seed)
+        )
+
+
+@pytest.fixture(scope="module")
+def model():
+    return fit(0)
+
+
+@pytest.fixture(scope="module")
+def diagram(model):
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return model.predict_diagram(range=(-0.3, 0.1), level=0.9, n_points=30)
+
+
+# ------------------------------------------------------------------ shared statistics
+def test_coverage_test_rejects_miscalibrated_rates() -> None:
+    hits = np.r_[np.ones(190, bool), np.zeros(10, bool)]  # 95 %
+    ok = coverage_test(hits, 0.95)
+    assert ok["rate"] == 0.95 and not ok["rejected"] and ok["n"] == 200
+    assert ok["rate_ci"][0] < 0.95 < ok["rate_ci"][1]
+    bad = coverage_test(np.r_[np.ones(170, bool), np.zeros(30, bool)], 0.95)  # 85 %
+    assert bad["rejected"]
+    assert bad["p_value"] == pytest.approx(scipy.stats.binomtest(170, 200, 0.95).pvalue)
+
+
+def test_conformal_quantile_is_the_finite_sample_order_statistic() -> None:
+    scores = np.arange(1.0, 20.0)  # n = 19
+    assert conformal_quantile(scores, 0.9) == 18.0  # ceil(20 * 0.9) = 18th smallest
+    assert conformal_quantile(-scores, 0.5) == 10.0
+    assert math.isinf(conformal_quantile(scores, 0.99))  # ceil(20 * 0.99) = 20 > n
+    # exchangeable scores: a new one falls below the quantile with probability
+    # ceil((n+1) level)/(n+1) = 16/20 (0.8; 4000 draws: a standard error of 0.0063)
+    rng = np.random.default_rng(1)
+    s = rng.standard_normal((4000, 20))
+    q = np.array([conformal_quantile(row[:19], 0.8) for row in s])
+    rate = np.mean(np.abs(s[:, 19]) <= q)
+    assert rate == pytest.approx(0.8, abs=0.02)
+
+
+# ---------------------------------------------------------------- mechanistic model
+def test_covariance_is_the_gauss_newton_covariance_of_the_analytic_model(model) -> None:
+    """σ̂²(JᵀJ)⁻¹ with J and the residuals from the closed-form radii at the fit."""
+    a2, q5 = model.params_["a2"], model.params_["q5"]
+    data = noisy_data(0)
+    res = radius(MU, STABLE == 1, a2, q5) - data.column("u1")
+    J = radius_gradient(MU, STABLE == 1, a2, q5)
+    sigma2 = res @ res / (MU.size - 2)
+    cov = model.covariance()
+    np.testing.assert_allclose(cov.cov, sigma2 * np.linalg.inv(J.T @ J), rtol=1e-5)
+    assert cov.dof == 6 and cov.names == ("a2", "q5")
+    se = model.summary()["standard_errors"]
+    np.testing.assert_allclose([se["a2"], se["q5"]], np.sqrt(np.diag(cov.cov)), rtol=1e-12)
+
+
+def test_fold_and_hopf_intervals_are_the_delta_method(model, diagram) -> None:
+    """Fold speed and amplitude: ``q ± t_{0.95, 6} sqrt(gᵀ C g)`` with g in closed form."""
+    a2, q5 = model.params_["a2"], model.params_["q5"]
+    C = model.covariance().cov
+    t = scipy.stats.t.ppf(0.95, 6)
+    (fold,) = diagram.special("cycle_fold")
+    assert fold.param == pytest.approx(-(a2**2) / (4 * q5), abs=1e-9)
+    g = np.array([-a2 / (2 * q5), a2**2 / (4 * q5**2)])
+    lo, hi = fold.intervals["param"]
+    assert (hi - lo) / 2 == pytest.approx(t * math.sqrt(g @ C @ g), rel=1e-6)
+    assert (lo + hi) / 2 == pytest.approx(fold.param, abs=1e-12)
+    r_f = math.sqrt(a2 / (2 * q5))
+    g_r = np.array([1 / (4 * q5 * r_f), -a2 / (4 * q5**2 * r_f)])
+    lo_a, hi_a = (np.asarray(v)[0] for v in fold.intervals["amplitude"])
+    assert (hi_a - lo_a) / 2 == pytest.approx(t * math.sqrt(g_r @ C @ g_r), rel=1e-5)
+    # the Hopf point mu0 = 0 does not depend on the free parameters: a zero-width interval
+    (hopf,) = diagram.special("hopf")
+    assert hopf.intervals["param"] == pytest.approx((0.0, 0.0), abs=1e-12)
+
+
+def test_branch_band_is_the_delta_method_at_fixed_parameter(model, diagram) -> None:
+    a2, q5 = model.params_["a2"], model.params_["q5"]
+    C = model.covariance().cov
+    t = scipy.stats.t.ppf(0.95, 6)
+    (b,) = diagram.of_kind("periodic")
+    lo, hi = (np.asarray(v)[:, 0] for v in b.intervals["amplitude"])
+    amp = np.asarray(b.data["amplitude"])[:, 0]
+    mu = np.asarray(b.params)
+    # away from the Hopf end and the fold, on both sides of the fold
+    stable = amp > math.sqrt(a2 / (2 * q5))
+    sel = (amp > 0.2) & (np.abs(mu + a2**2 / (4 * q5)) > 0.02)
+    assert np.sum(sel & stable) >= 3 and np.sum(sel & ~stable) >= 3
+    g = radius_gradient(mu[sel], stable[sel], a2, q5)
+    half = t * np.sqrt(np.einsum("ni,ij,nj->n", g, C, g))
+    np.testing.assert_allclose((hi - lo)[sel] / 2, half, rtol=1e-4)
+
+
+def test_json_contract_and_level_validation(model, diagram, tmp_path, bifid_cli) -> None:
+    out = diagram.to_json()
+    assert out["level"] == 0.9
+    assert len(out["cycle_folds"][0]["param_interval"]) == 2
+    assert set(out["cycle_folds"][0]["amplitude_interval"]) == {"u1", "u2"}
+    assert "param_interval" in out["hopf"][0]
+    assert all("amplitude_interval" in o for o in out["orbits"])
+    for bad in (0.0, 1.0, 1.5, "x"):
+        with pytest.raises(BifidInputError, match="level"):
+            model.predict_diagram(range=(-0.3, 0.1), level=bad)
+    with pytest.warns(UserWarning, match="extrapolates"):
+        model.predict_diagram(range=(-0.3, 0.2), level=0.9, n_points=10)
+    model.save(tmp_path / "m")
+    r = bifid_cli("predict", tmp_path / "m", "--range", "-0.3", "0.1", "--level", "0.95", "--json")
+    assert r.code == 0, r.stderr
+    assert r.json["level"] == 0.95 and "param_interval" in r.json["cycle_folds"][0]
+    r = bifid_cli("predict", tmp_path / "m", "--range", "-0.3", "0.1", "--level", "2")
+    assert r.code == 2 and "level" in r.stderr
+
+
+def test_coverage_small_in_process() -> None:
+    """Six seeded replications, four quantities each (a2, q5, fold speed and amplitude) at
+    nominal 90 %: the intervals hold the truth at a rate the binomial test accepts, and
+    intervals half as wide do not."""
+    truth = {"a2": 1.0, "q5": 1.0, "fold": -0.25, "fold_amp": math.sqrt(0.5)}
+    hits, narrow = [], []
+    t = scipy.stats.t.ppf(0.95, 6)
+    for seed in range(1, 7):
+        m = fit(seed)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            d = m.predict_diagram(range=(-0.3, 0.05), level=0.9, n_points=10)
+        (fold,) = d.special("cycle_fold")
+        se = m.covariance().standard_errors()
+        est = {
+            "a2": (m.params_["a2"], t * se["a2"]),
+            "q5": (m.params_["q5"], t * se["q5"]),
+            "fold": (fold.param, np.diff(fold.intervals["param"])[0] / 2),
+            "fold_amp": (
+                fold.data["amplitude"][0],
+                (fold.intervals["amplitude"][1][0] - fold.intervals["amplitude"][0][0]) / 2,
+            ),
+        }
+        for k, (v, half) in est.items():
+            hits.append(abs(v - truth[k]) <= half)
+            narrow.append(abs(v - truth[k]) <= half / 2)
+    assert not coverage_test(hits, 0.9)["rejected"], hits
+    assert np.mean(hits) >= 0.8, hits
+    assert np.mean(narrow) < 0.75, narrow
