@@ -313,8 +313,9 @@ def run_demo(name: str, orbits: bool = True) -> dict:
         code, data, err, dt = run_cli(continue_args(run, name, orbits))
         timing.append(dt)
         log(f"{name} {run['label']}: exit {code} in {dt:.1f} s")
-        if data is None:
-            notes.append(f"{run['label']}: no JSON (exit {code}): {err.strip()[-300:]}")
+        if data is None or "hopf" not in data:  # no diagram (an error, or interrupted)
+            notes.append(f"{run['label']}: no diagram (exit {code}): "
+                         f"{(data or {}).get('message') or err.strip()[-300:]}")
             continue
         if not data.get("complete", False):
             notes.append(f"{run['label']}: incomplete ({data.get('status')}): "

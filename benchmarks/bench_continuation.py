@@ -418,15 +418,15 @@ def pairs(rows: dict, base: dict) -> list[tuple[float, int]]:
 
 def render(rows, base, ref_fold, n_ref, t_ref, h, t_hopf_first, hopf_warm, field_err, jx,
            load0, load1, total) -> str:
-    L = ["## Continuation: flutter orbit branch through the cycle fold (issue 2 §5)", ""]
+    L = ["## Continuation: flutter orbit branch through the cycle fold", ""]
     L.append(
         "**Task.** From the subcritical Hopf point of `flutter` (U_H = "
         f"{h.param:.6f} m/s) follow the periodic orbits down through the fold of cycles "
         f"(U = {ref_fold:.10f} m/s) and back up the stable side to U = {P_MAX:g} m/s "
         f"(`ContinuationOptions(p_min={P_MIN:g}, p_max={P_MAX:g})`), with Floquet "
-        "stability of every orbit and the fold located. The issue's wording, \"through "
-        "the fold to U = 14 m/s\", covers the whole unstable branch and the fold, but "
-        "this model puts the fold at 14.94 > 14: the branch never reaches U = 14, it "
+        "stability of every orbit and the fold located. The lower bound 14 m/s "
+        "is below the fold: this model puts the fold at 14.94 > 14, so the branch "
+        "never reaches U = 14, it "
         f"turns at the fold and the stable orbits climb back up; we stop them at "
         f"{P_MAX:g} (just above U_H).\n"
     )

@@ -1,12 +1,16 @@
 #!/usr/bin/env python
 """Benchmark: the property test of bifurcation diagrams on many random variants.
 
-Every built-in autonomous system, ``--n`` random parameter variants each (20 by default),
-through :func:`bifid.continuation.bifurcation_diagram` (what ``bifid continue`` computes),
-checked by every registered property check of ``tests/_properties.py`` against
-independent computations written for the test (a dense eigenvalue scan of the
-equilibria: no false and no missed Hopf point, fold or real crossing). ``--orbits`` also
-continues the orbits and runs the orbit checks.
+Every built-in system, ``--n`` random parameter variants each (20 by default): the
+autonomous ones through :func:`bifid.continuation.bifurcation_diagram` (what ``bifid
+continue`` computes), the forced ones through :func:`bifid.continuation.frc`; checked by
+every registered property check of ``tests/_properties.py`` against independent
+computations written for the test (a dense eigenvalue scan of the equilibria: no false
+and no missed Hopf point, fold or real crossing; independent Floquet multipliers of the
+orbits and forced responses: stability labels, no false and no missed fold, cycle fold,
+period doubling or torus point). ``--orbits`` also continues the orbits of the autonomous
+systems and runs the orbit checks (the forced systems always have them). ``--systems``
+picks some; the table is rewritten after each system, so a partial run reports what ran.
 
 ``--auto`` adds random variants of AUTO-07p demos (``benchmarks/auto_demos``), whose
 equilibria are not trivial: folds, several Hopf points, branch points.
@@ -30,9 +34,11 @@ import numpy as np  # noqa: E402
 
 from _properties import (  # noqa: E402
     CHECKS,
+    ORBIT_KINDS,
     SAMPLERS,
     Variant,
     autonomous_builtins,
+    forced_builtins,
     run_variant,
     variants,
 )
@@ -77,20 +83,23 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--seed", type=int, default=2024)
     ap.add_argument("--orbits", action="store_true", help="continue orbits, run orbit checks")
     ap.add_argument("--auto", action="store_true", help="also variants of AUTO-07p demos")
+    ap.add_argument("--systems", nargs="+", help="only these systems (default: all)")
     ap.add_argument("--no-write", action="store_true", help="print, do not write BENCHMARKS.md")
     a = ap.parse_args(argv)
     import bifid  # noqa: F401  (float64)
 
-    names = autonomous_builtins()
+    names = autonomous_builtins() + forced_builtins()
     if a.auto:
         for name, sampler in AUTO_SAMPLERS.items():
             load_demo(name)
             SAMPLERS[name] = sampler
         names += list(AUTO_SAMPLERS)
-    rows, failures = [], []
+    if a.systems:
+        names = [n for n in names if n in a.systems]
+    rows, failures, md = [], [], ""
     for name in names:
         t0 = time.perf_counter()
-        n_hopf = n_fold = n_cand = 0
+        n_hopf = n_fold = n_orbit = n_cand = 0
         bad = 0
         for k, v in enumerate(variants(name, a.n, a.seed)):
             try:
@@ -100,35 +109,49 @@ def main(argv: list[str] | None = None) -> int:
             if diagram is not None:
                 n_hopf += len(diagram.special("hopf"))
                 n_fold += len(diagram.branches[0].special("fold"))
+                n_orbit += sum(s.kind in ORBIT_KINDS and s.kind != "fold"
+                               for b in diagram.branches if b.kind != "equilibrium"
+                               for s in b.special_points)
                 n_cand += sum(len(b.candidates) for b in diagram.branches)
             bad += bool(fails)
             failures += [f"{v.label}: {f}" for f in fails]
             log(f"{name} {k + 1}/{a.n}: {'ok' if not fails else fails}")
-        rows.append((name, a.n, n_hopf, n_fold, n_cand, bad, time.perf_counter() - t0))
-    checks = ", ".join(n for n, (_, orb) in CHECKS.items() if a.orbits or not orb)
+        rows.append((name, a.n, n_hopf, n_fold, n_orbit, n_cand, bad, time.perf_counter() - t0))
+        md = render(rows, failures, a)
+        if not a.no_write:
+            write_section("properties", md)
+    print(md)
+    return 1 if failures else 0
+
+
+def render(rows: list[tuple], failures: list[str], a: argparse.Namespace) -> str:
+    """The BENCHMARKS.md section for the systems run so far."""
+    checks = ", ".join(n for n, (_, orb, _k) in CHECKS.items() if a.orbits or not orb)
     lines = [
         "## Property test of bifurcation diagrams (`bench_properties.py`)",
         "",
-        f"Random parameter variants of every built-in autonomous system"
-        f"{' and of AUTO-07p demos' if a.auto else ''} (seed {a.seed}), checks: {checks};",
+        f"Random parameter variants of the built-in systems"
+        f"{' and of AUTO-07p demos' if a.auto else ''} (seed {a.seed}), checks: {checks}"
+        f"{' (orbits of the autonomous systems included)' if a.orbits else ''};",
         "each against an independent dense scan written for the test (`tests/_properties.py`):",
         "the equilibrium by Newton on a uniform grid of 2001 parameter values and the",
         "eigenvalues of its Jacobian, along each branch up to its first fold (a uniform grid",
         "cannot follow a branch round a fold; there bifid must have located one). Hopf points",
         "and folds: all located points of the variants (also beyond a first fold); failing: a",
-        "false or missed point, or a Hopf candidate.",
+        "false or missed point, or a Hopf candidate. Orbits (and the FRCs of the forced",
+        "systems, over a range round their resonances): Floquet multipliers by SciPy",
+        "(variational equation, DOP853) on twelve orbits spread over each branch and both",
+        "neighbours of every located point: stability labels, every change of stability",
+        "at a located point, every located point's multiplier at +1, −1 or on the circle.",
         "",
-        "| system | variants | Hopf points | folds | candidates | variants failing | wall [s] |",
-        "|---|---|---|---|---|---|---|",
+        "| system | variants | Hopf points | folds | orbit bifurcations | candidates "
+        "| variants failing | wall [s] |",
+        "|---|---|---|---|---|---|---|---|",
     ]
-    lines += [f"| {r[0]} | {r[1]} | {r[2]} | {r[3]} | {r[4]} | {r[5]} | {r[6]:.0f} |" for r in rows]
+    lines += ["| " + " | ".join(str(v) for v in r[:-1]) + f" | {r[-1]:.0f} |" for r in rows]
     if failures:
         lines += ["", "Failures:"] + [f"- {f}" for f in failures]
-    md = "\n".join(lines) + "\n"
-    print(md)
-    if not a.no_write:
-        write_section("properties", md)
-    return 1 if failures else 0
+    return "\n".join(lines) + "\n"
 
 
 if __name__ == "__main__":

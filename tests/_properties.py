@@ -15,20 +15,32 @@ changes the sign of its real part — refined by bisection — and a real crossi
 ``det J`` changes sign. No false point (every located Hopf point and fold is in the scan)
 and no missed point (every Hopf point of the scan is located; every real crossing is a
 located fold or a branch-point candidate).
+
+The orbit check compares every orbit branch (and, for the forced built-ins, the FRC)
+with Floquet multipliers computed independently: the variational equation integrated by
+SciPy (DOP853, rtol 1e-10) over one period from the orbit's first mesh value, on a dense
+sample of the orbits and on both neighbours of every located point. The stability label
+of every sampled orbit must agree with them; wherever the independent label changes
+between two sampled orbits a located orbit bifurcation (or a candidate) must lie between
+them (no missed point); and every located cycle fold, branch point, period doubling or
+torus point must have its multiplier on the unit circle where its kind says (+1, -1, a
+complex pair) by the independent computation (no false point).
 """
 
 from __future__ import annotations
 
 import functools
+import itertools
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
 import jax
 import jax.numpy as jnp
 import numpy as np
+from scipy.integrate import solve_ivp
 from scipy.optimize import root
 
-from bifid.continuation import Diagram, bifurcation_diagram
+from bifid.continuation import Diagram, bifurcation_diagram, frc
 from bifid.systems import System, get_system, list_systems
 
 
@@ -91,9 +103,33 @@ def _generic(name: str) -> Callable[[np.random.Generator], Variant]:
     return sample
 
 
-#: how to draw a random variant of each built-in autonomous system (others: generic)
+def _log_uniform(rng: np.random.Generator, lo: float, hi: float) -> float:
+    return float(np.exp(rng.uniform(np.log(lo), np.log(hi))))
+
+
+def _duffing(rng: np.random.Generator) -> Variant:
+    """A hardening or softening Duffing FRC round its primary resonance (softening kept
+    below the escape amplitude ``1/sqrt(|gamma|)``)."""
+    hardening = rng.random() < 0.6
+    gamma = rng.uniform(0.1, 1.0) if hardening else -rng.uniform(0.05, 0.3)
+    F = _log_uniform(rng, 0.005, 0.03 if hardening else 0.01)
+    start, end = _range(rng, (0.6, 0.85), (1.15, 1.6))
+    return Variant("duffing", "Omega", start, end, {
+        "zeta": _log_uniform(rng, 0.005, 0.05), "gamma": gamma, "F": F})
+
+
+def _shaw_pierre(rng: np.random.Generator) -> Variant:
+    """An FRC of both modes (near 1 and sqrt(3))."""
+    over = _scaled(rng, get_system("shaw_pierre"), "Omega")
+    over["F"] = _log_uniform(rng, 0.003, 0.02)
+    start, end = _range(rng, (0.8, 0.95), (1.8, 2.0))
+    return Variant("shaw_pierre", "Omega", start, end, over)
+
+
+#: how to draw a random variant of each built-in system (other autonomous ones: generic)
 SAMPLERS: dict[str, Callable[[np.random.Generator], Variant]] = {
     "hopf": _hopf, "vanderpol": _vanderpol, "flutter": _flutter,
+    "duffing": _duffing, "shaw_pierre": _shaw_pierre,
 }
 
 
@@ -105,6 +141,13 @@ def autonomous_builtins() -> list[str]:
         if s.kind == "autonomous" and getattr(s, "source", "built-in") == "built-in":
             out.append(name)
     return out
+
+
+def forced_builtins() -> list[str]:
+    """Every built-in forced system."""
+    return [name for name in list_systems()
+            if get_system(name).kind == "forced"
+            and getattr(get_system(name), "source", "built-in") == "built-in"]
 
 
 def variants(name: str, n: int, seed: int) -> list[Variant]:
@@ -209,15 +252,17 @@ def _bisect(system, p, idx, la, lb, a: complex, x: np.ndarray) -> tuple[float, f
 
 
 # ----------------------------------------------------------------------- the checks
-#: name -> (check, needs_orbits)
-CHECKS: dict[str, tuple[Callable[[Variant, System, Diagram], list[str]], bool]] = {}
+#: name -> (check, needs_orbits, kinds of system it applies to)
+CHECKS: dict[str, tuple[Callable[[Variant, System, Diagram], list[str]], bool, tuple[str, ...]]]
+CHECKS = {}
 
 
-def register_check(name: str, needs_orbits: bool = False):
-    """Register a property check (decorator)."""
+def register_check(name: str, needs_orbits: bool = False,
+                   kinds: tuple[str, ...] = ("autonomous",)):
+    """Register a property check (decorator) for systems of the given ``kinds``."""
 
     def deco(fn):
-        CHECKS[name] = (fn, needs_orbits)
+        CHECKS[name] = (fn, needs_orbits, kinds)
         return fn
 
     return deco
@@ -273,15 +318,149 @@ def check_equilibria(variant: Variant, system: System, diagram: Diagram) -> list
     return out
 
 
+# ------------------------------------------------------------ orbits: multipliers
+_VARIATIONAL: dict[Callable, Callable] = {}
+
+
+def _variational(system: System) -> Callable:
+    """Jitted ``(t, [x, vec Phi], p) -> [f, vec(J Phi)]`` of the full right-hand side."""
+    key = system.field
+    if key not in _VARIATIONAL:
+        n = system.n_states
+
+        def rhs(t, z, p):
+            x, phi = z[:n], z[n:].reshape(n, n)
+            f = system.rhs(x, t, p)
+            J = jax.jacfwd(lambda y: system.rhs(y, t, p))(x)
+            return jnp.concatenate([f, (J @ phi).ravel()])
+
+        _VARIATIONAL[key] = jax.jit(rhs)
+    return _VARIATIONAL[key]
+
+
+def independent_multipliers(system: System, p, x0, period: float) -> np.ndarray:
+    """Eigenvalues of the monodromy matrix from ``x0`` over ``period``: the variational
+    equation integrated by SciPy (DOP853, rtol 1e-10), independent of bifid's Floquet
+    code."""
+    n = system.n_states
+    rhs, pj = _variational(system), jnp.asarray(np.asarray(p, dtype=float))
+    z0 = np.concatenate([np.asarray(x0, dtype=float), np.eye(n).ravel()])
+    sol = solve_ivp(lambda t, z: np.asarray(rhs(t, z, pj)), (0.0, period), z0,
+                    method="DOP853", rtol=1e-10, atol=1e-12)
+    return np.linalg.eigvals(sol.y[n:, -1].reshape(n, n))
+
+
+def _orbit_of(system: System, br, sol: np.ndarray, param: float, M: int, data_i=None):
+    """(parameter vector, first mesh value, period) of an orbit or forced response."""
+    n = system.n_states
+    p = np.array(br.p, dtype=float)
+    p[system.index(br.param)] = param
+    if br.kind == "periodic":
+        return p, sol[:n], float(sol[M * n])
+    if data_i is not None:
+        p[system.index("Omega")], p[system.index("F")] = data_i
+    return p, sol[:n], 2 * np.pi / float(p[system.index("Omega")])
+
+
+def _nontrivial(mults: np.ndarray, autonomous: bool) -> np.ndarray:
+    if not autonomous:
+        return mults
+    return np.delete(mults, int(np.argmin(np.abs(mults - 1.0))))
+
+
+def _label(mults: np.ndarray, tol: float = 1e-6) -> float:
+    """1 stable, 0 unstable, NaN within ``tol`` of the unit circle."""
+    top = float(np.max(np.abs(mults))) if mults.size else 0.0
+    return 1.0 if top < 1 - tol else 0.0 if top > 1 + tol else float("nan")
+
+
+def _on_circle(kind: str, mults: np.ndarray, autonomous: bool) -> bool:
+    """The located point's multipliers as its kind says (independent computation)."""
+    if kind in ("cycle_fold", "fold", "branch_point"):
+        near = np.sort(np.abs(mults - 1.0))
+        # autonomous: trivial and critical multiplier (a Jordan block splits ~sqrt(eps))
+        return bool(near[1 if autonomous else 0] <= 1e-3)
+    if kind == "period_doubling":
+        return bool(np.min(np.abs(mults + 1.0)) <= 1e-5)
+    if kind == "torus":
+        pair = mults[np.abs(mults.imag) > 1e-3]
+        return bool(pair.size and np.min(np.abs(np.abs(pair) - 1.0)) <= 1e-5)
+    return True  # peaks and others: no multiplier condition
+
+
+ORBIT_KINDS = ("cycle_fold", "fold", "branch_point", "period_doubling", "torus")
+
+
+def check_orbit_branch(system: System, br, n_sample: int = 12) -> list[str]:
+    """One orbit branch (or forced response) against independent multipliers."""
+    autonomous = br.kind == "periodic"
+    M = int(br.meta["n_mesh"])
+    forced = None if autonomous else np.column_stack([br.data["omega"], br.data["forcing"]])
+    pts = [sp for sp in br.special_points if sp.kind in ORBIT_KINDS]
+    zero = np.zeros(len(br), bool)
+    if autonomous:  # the zero-amplitude orbits at Hopf points have no multipliers to check
+        zero = np.max(np.reshape(br.data["amplitude_centred"], (len(br), -1)), axis=1) <= 1e-8
+    idx = set(np.linspace(0, len(br) - 1, n_sample).astype(int).tolist())
+    idx |= {j for sp in pts for j in (sp.index, sp.index + 1) if 0 <= j < len(br)}
+    idx = sorted(i for i in idx if not zero[i])
+    out, labels = [], {}
+    for i in idx:
+        p, x0, T = _orbit_of(system, br, br.solutions[i], br.params[i], M,
+                             None if forced is None else forced[i])
+        mu = _nontrivial(independent_multipliers(system, p, x0, T), autonomous)
+        labels[i] = _label(mu)
+        if np.isfinite(labels[i]) and bool(labels[i]) != bool(br.stable[i]):
+            out.append(f"orbit {i} at {br.params[i]:.8g}: labelled "
+                       f"{'stable' if br.stable[i] else 'unstable'}, independent "
+                       f"max|mu| = {np.max(np.abs(mu)):.8g}")
+    known = [i for i in idx if np.isfinite(labels[i])]
+    brackets = [c.bracket for c in br.candidates]
+    for i, j in itertools.pairwise(known):
+        if labels[i] == labels[j]:
+            continue
+        lo, hi = sorted((float(br.params[i]), float(br.params[j])))
+        if not (any(i <= sp.index < j for sp in pts)
+                or any(min(c) <= hi and lo <= max(c) for c in brackets)):
+            out.append(f"missed orbit bifurcation between orbits {i} and {j} "
+                       f"({br.params[i]:.8g} .. {br.params[j]:.8g}): stability changes")
+    for sp in pts:
+        Ms = int(sp.data.get("n_mesh", M))
+        data_i = None if autonomous else (
+            (sp.param, br.data["forcing"][sp.index]) if br.param == "Omega"
+            else (br.data["omega"][sp.index], sp.param))
+        p, x0, T = _orbit_of(system, br, np.asarray(sp.solution), sp.param, Ms, data_i)
+        mults = independent_multipliers(system, p, x0, T)
+        if not _on_circle(sp.kind, mults, autonomous):
+            out.append(f"false {sp.kind} at {sp.param:.10g}: independent multipliers "
+                       f"{np.round(mults, 8).tolist()}")
+    return out
+
+
+@register_check("orbits", needs_orbits=True, kinds=("autonomous", "forced"))
+def check_orbits(variant: Variant, system: System, diagram: Diagram) -> list[str]:
+    """Every orbit branch (every FRC) against independent Floquet multipliers."""
+    out = []
+    for k, br in enumerate(diagram.branches):
+        if br.kind != "equilibrium" and len(br) >= 2:
+            out += [f"branch {k}: {m}" for m in check_orbit_branch(system, br)]
+    return out
+
+
 def run_variant(variant: Variant, *, orbits: bool = False) -> tuple[Diagram, list[str]]:
-    """The variant's diagram and the failures of every applicable check."""
+    """The variant's diagram and the failures of every applicable check (forced systems:
+    the FRC over the variant's range, always with the orbit checks)."""
     system = get_system(variant.system)
     p = system.param_vector(variant.overrides)
-    diagram = bifurcation_diagram(system, variant.param, variant.start, variant.end, p=p,
-                                  x0=variant.x0, orbits=orbits)
+    if system.kind == "forced":
+        br = frc(system, float(p[system.index("F")]), (variant.start, variant.end), p=p)
+        diagram, orbits = Diagram(kind="frc", system=system.name, param="Omega",
+                                  branches=[br]), True
+    else:
+        diagram = bifurcation_diagram(system, variant.param, variant.start, variant.end,
+                                      p=p, x0=variant.x0, orbits=orbits)
     failures = []
-    for name, (check, needs_orbits) in CHECKS.items():
-        if needs_orbits and not orbits:
+    for name, (check, needs_orbits, kinds) in CHECKS.items():
+        if (needs_orbits and not orbits) or system.kind not in kinds:
             continue
         failures += [f"{name}: {msg}" for msg in check(variant, system, diagram)]
     return diagram, failures

@@ -69,6 +69,21 @@ def test_no_hopf_point_in_range_is_a_complete_answer(bifid_cli):
     ]
 
 
+def test_van_der_pol_collision_is_not_a_second_hopf_point(bifid_cli):
+    """Check `continue vanderpol --range -0.2 1.2`: the eigenvalue collision at mu = 1
+    (a complex pair becoming two real ones) is neither a Hopf point nor a candidate; the
+    one Hopf point is mu = 0, in the JSON and the summary line alike."""
+    args = ("continue", "vanderpol", "--param", "mu", "--range", "-0.2", "1.2", "--no-orbits",
+            "--quiet")
+    data = bifid_cli(*args, "--json").json
+    (h,) = data["hopf"]
+    assert abs(h["param"]) < 1e-12 and h["omega"] == pytest.approx(1.0, abs=1e-12)
+    assert data["candidates"] == [] and data["complete"] is True
+    r = bifid_cli(*args)
+    assert r.code == 0 and "Hopf at mu = 0 (supercritical" in r.stdout
+    assert "candidates" not in r.stdout
+
+
 def _fold_field(x, p):
     # x' = mu - x^2 (a fold at mu = 0, x = 0), y' = -y
     return jnp.stack([p[0] - x[0] ** 2, -x[1]])

@@ -89,8 +89,10 @@ def test_stable_orbit_matches_long_simulation_and_one_trivial_multiplier(flutter
     assert np.sort(near_one)[1] > 1e-3
 
 
+@pytest.mark.slow
 def test_cycle_fold_converged_in_mesh_size(flutter):
-    """Check the fold-of-cycles speed changes by < 1e-8 between M = 64 and 2M = 128."""
+    """Check the fold-of-cycles speed changes by < 1e-8 between M = 64 and 2M = 128
+    (slow: a second branch on 768 unknowns; run with --runslow)."""
     s, _, br = flutter
     (fold,) = br.special("cycle_fold")
     M = br.meta["n_mesh"]

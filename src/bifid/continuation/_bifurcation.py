@@ -111,10 +111,11 @@ def bifurcation_diagram(
                     progress=progress)
     branches = [eq]
     if orbits:
-        # at least ten steps across the range, where the orbits change little
+        # at least ten steps across the range in the parameter; longer ones in the orbits
+        # where the branch is nearly vertical (the orbits change, the parameter hardly)
         orbit_options = orbit_options or ContinuationOptions(
-            ds=1e-3, ds_max=max(1e-3, min(0.25, span / 10)), ds_min=1e-9, p_min=lo, p_max=hi,
-            max_steps=max_steps)
+            ds=1e-3, ds_max=0.25, dp_max=max(1e-3, min(0.25, span / 10)), ds_min=1e-9,
+            p_min=lo, p_max=hi, max_steps=max_steps)
         for h in eq.special("hopf"):
             try:
                 branches.append(hopf_orbits(system, h, p=p, n_mesh=n_mesh, max_mesh=max_mesh,

@@ -107,6 +107,12 @@ def _check_field(system: System, x: np.ndarray, p: Array) -> None:
             f"the field of {system.name!r} must return {system.n_states} values (one per "
             f"state), got shape {f.shape}."
         )
+    if not (np.all(np.isfinite(np.asarray(p))) and np.all(np.isfinite(f))):
+        raise BifidInputError(
+            f"the field of {system.name!r} is not finite at the start (x0={x.tolist()}, "
+            f"parameters {np.asarray(p).tolist()}): give finite parameters and a starting "
+            "guess where the field is defined."
+        )
 
 
 def _eigenvalues(field: Callable, ys: np.ndarray, p: Array, idx: int) -> np.ndarray:

@@ -53,6 +53,7 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 
+from bifid.errors import BifidInputError
 from bifid.signal import evaluate_fourier, fourier_coefficients
 
 Array = jnp.ndarray
@@ -442,6 +443,17 @@ def floquet_multipliers(
     floquet_max : array of shape (n_orbits,)
         Largest modulus among the non-trivial multipliers (NaN where it failed).
     """
+    orbits, periods, ps = np.asarray(orbits), np.asarray(periods), np.asarray(ps)
+    if orbits.ndim != 3 or periods.shape != orbits.shape[:1] or ps.ndim != 2 \
+            or ps.shape[0] != orbits.shape[0]:
+        raise BifidInputError(
+            "floquet_multipliers expects orbits (K, M, n), periods (K,) and parameter "
+            f"vectors (K, P); got shapes {orbits.shape}, {periods.shape}, {ps.shape}."
+        )
+    if not (np.all(np.isfinite(orbits)) and np.all(np.isfinite(periods))
+            and np.all(periods > 0)):
+        raise BifidInputError("floquet_multipliers needs finite orbits and positive finite "
+                              "periods.")
     fl = floquet(rhs, orbits, periods, ps, autonomous=autonomous)
     label = fl.stable()
     return fl.multipliers, np.nan_to_num(label, nan=0.0).astype(bool), fl.floquet_max

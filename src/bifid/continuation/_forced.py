@@ -403,6 +403,11 @@ def _one_parameter(system, param, rng, fixed, p, n_mesh, max_mesh, adapt, option
     """Continuation of forced responses in ``param`` ("Omega" or "F") over ``rng``."""
     _require_forced(system)
     lo, hi = check_range(f"{'omega' if param == 'Omega' else 'forcing'} range", *rng)
+    if param == "Omega" and min(lo, hi) <= 0:
+        raise BifidInputError(f"the omega range must be positive (a forcing frequency), got "
+                              f"{lo:g}, {hi:g}.")
+    if param == "F" and min(lo, hi) < 0:
+        raise BifidInputError(f"the forcing range must not be negative, got {lo:g}, {hi:g}.")
     direction = 1 if hi > lo else -1
     n = system.n_states
     policy = MeshPolicy.of(n_mesh, max_mesh, resolution_tol, adapt, n)

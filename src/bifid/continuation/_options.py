@@ -19,6 +19,10 @@ class ContinuationOptions:
         Initial arclength step (in the weighted norm of the problem).
     ds_min, ds_max : float
         Bounds of the adaptive step.
+    dp_max : float
+        Largest change of the parameter in one step (default: no limit). With it a
+        branch can take long steps where it changes mostly in its states (an orbit
+        branch that is nearly vertical) and still resolve the parameter range.
     max_steps : int
         Maximum number of accepted points.
     p_min, p_max : float
@@ -38,6 +42,7 @@ class ContinuationOptions:
     ds: float = 0.01
     ds_min: float = 1e-7
     ds_max: float = 0.1
+    dp_max: float = math.inf
     max_steps: int = 400
     p_min: float = -math.inf
     p_max: float = math.inf
@@ -58,6 +63,8 @@ class ContinuationOptions:
             raise BifidInputError(
                 f"Parameter bounds must be ordered, p_min < p_max; got {self.p_min}, {self.p_max}."
             )
+        if not self.dp_max > 0:
+            raise BifidInputError(f"dp_max must be positive, got {self.dp_max!r}.")
         if self.direction not in (1, -1):
             raise BifidInputError(f"direction must be +1 or -1, got {self.direction!r}.")
         if self.max_steps < 1 or self.newton_max_iter < 1:

@@ -242,6 +242,8 @@ class Continuation:
         if self.predictor == "secant" and state.y_prev is not None:
             sec = y - state.y_prev
             direction = sec / math.sqrt(float(sec @ (w * sec)))
+        if abs(float(direction[pi])) * ds > o.dp_max:  # the parameter limit per step
+            ds = max(o.dp_max / abs(float(direction[pi])), o.ds_min)
         y_pred = y + ds * direction
         row = w * direction
         r = self.corrector.correct(y_pred, row, float(row @ y_pred), args)

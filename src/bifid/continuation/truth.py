@@ -110,23 +110,14 @@ def correct_orbit(system: System, param: str, value: float, orbit: np.ndarray, p
     ConvergenceError
         If Newton's method does not converge.
     """
-    V = _on_mesh(system, orbit, n_mesh)
-    n = system.n_states
+    V, n, pv = _guess(system, orbit, n_mesh, p)
     D = fourier_differentiation_matrix(n_mesh)
-    pv = system.param_vector() if p is None else jnp.asarray(p, dtype=jnp.float64)
     idx = system.index(param)
     args = {"p": pv.at[idx].set(value), "idx": jnp.asarray(idx),
             "dref": jnp.asarray((D @ V).ravel())}
-    y0 = np.concatenate([V.ravel(), [period, value]])
-    e = np.zeros_like(y0)
-    e[-1] = 1.0
-    y, ok, _, res = correct(orbit_problem(system.field, n_mesh, n), y0, e, value, args,
-                            tol=tol, max_iter=40)
-    if not ok:
-        raise ConvergenceError(
-            f"Newton did not converge on the orbit of {system.name!r} at {param}={value:g} "
-            f"(residual {res:.1e})."
-        )
+    y = _newton(orbit_problem(system.field, n_mesh, n),
+                np.concatenate([V.ravel(), [period, value]]), args, tol,
+                f"the orbit of {system.name!r} at {param}={value:g}")
     return np.asarray(y[: n_mesh * n]).reshape(n_mesh, n), float(y[n_mesh * n])
 
 
@@ -142,23 +133,30 @@ def correct_forced(system: System, omega: float, forcing: float, orbit: np.ndarr
     ConvergenceError
         If Newton's method does not converge.
     """
-    V = _on_mesh(system, orbit, n_mesh)
-    n = system.n_states
-    pv = system.param_vector() if p is None else jnp.asarray(p, dtype=jnp.float64)
+    V, n, pv = _guess(system, orbit, n_mesh, p)
     iF, iOm = system.index("F"), system.index("Omega")
     args = {"p": pv.at[iOm].set(omega).at[iF].set(forcing), "idx": jnp.asarray([iF]),
             "obs": jnp.asarray(system.state_index(system.observed))}
-    y0 = np.concatenate([V.ravel(), [forcing]])
+    y = _newton(forced_problem(system, n_mesh, 1), np.concatenate([V.ravel(), [forcing]]),
+                args, tol, f"the forced response of {system.name!r} at F={forcing:g}, "
+                f"Omega={omega:g}")
+    return np.asarray(y[: n_mesh * n]).reshape(n_mesh, n)
+
+
+def _guess(system: System, orbit: np.ndarray, n_mesh: int, p) -> tuple[np.ndarray, int, object]:
+    """The guess on the mesh, the number of states and the parameter vector."""
+    pv = system.param_vector() if p is None else jnp.asarray(p, dtype=jnp.float64)
+    return _on_mesh(system, orbit, n_mesh), system.n_states, pv
+
+
+def _newton(problem, y0: np.ndarray, args: dict, tol: float, what: str) -> np.ndarray:
+    """Newton at the fixed last unknown of ``y0`` (the parameter); raises on failure."""
     e = np.zeros_like(y0)
     e[-1] = 1.0
-    y, ok, _, res = correct(forced_problem(system, n_mesh, 1), y0, e, forcing, args, tol=tol,
-                            max_iter=40)
+    y, ok, _, res = correct(problem, y0, e, float(y0[-1]), args, tol=tol, max_iter=40)
     if not ok:
-        raise ConvergenceError(
-            f"Newton did not converge on the forced response of {system.name!r} at "
-            f"F={forcing:g}, Omega={omega:g} (residual {res:.1e})."
-        )
-    return np.asarray(y[: n_mesh * n]).reshape(n_mesh, n)
+        raise ConvergenceError(f"Newton did not converge on {what} (residual {res:.1e}).")
+    return y
 
 
 def centred_amplitudes(orbit: np.ndarray) -> np.ndarray:
