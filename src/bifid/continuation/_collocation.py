@@ -199,7 +199,7 @@ def hopf_orbits(
     ends = OrbitEnds(first_amplitude=_centred_amplitude(y1, M, n), first_period=TWO_PI / omega,
                      n_states=n)
     run = run_adaptive(lambda m: orbit_stage(system, p, idx, m), y1, t0, policy, options, n,
-                       stop=ends.stop, progress=progress)
+                       stop=ends.stop, monitor=ends.monitor, progress=progress)
     run.ys.insert(0, y_h)
     run.meshes.insert(0, M)
     run.tangents.insert(0, t0)
@@ -280,7 +280,7 @@ def periodic_orbits(
     ends = OrbitEnds(first_amplitude=_centred_amplitude(y0, M, n), first_period=float(y0[M * n]),
                      n_states=n, from_hopf=False)
     run = run_adaptive(lambda m: orbit_stage(system, p, idx, m), y0, t0, policy, options, n,
-                       stop=ends.stop, progress=progress)
+                       stop=ends.stop, monitor=ends.monitor, progress=progress)
     start = SpecialPoint(kind="start", param=lam0, index=0, bracket=(lam0, lam0),
                          solution=y0, data={})
     return orbit_branch(system, param, p, run, options, policy, start,

@@ -49,6 +49,11 @@ HOMOCLINIC_PERIOD_FACTOR = 50.0
 HOMOCLINIC_SETTLED = 1e-8
 #: points examined for the signature of a homoclinic approach
 _HOMOCLINIC_WINDOW = 6
+#: a step from an orbit larger than this fraction of the branch's largest to one smaller
+#: than ``COLLAPSE_TO`` of it has fallen onto the equilibrium (a constant solves the
+#: collocation equations): the step is rejected and retried shorter
+COLLAPSE_FROM = 0.2
+COLLAPSE_TO = 0.1
 
 
 def _centred(V: np.ndarray) -> float:
@@ -83,6 +88,18 @@ class OrbitEnds:
                 homoclinic_signature(np.array(self.params), np.array(self.periods)):
             return "homoclinic"
         return None
+
+    def monitor(self, y, y_new, M) -> float:
+        """Step control of :func:`bifid.continuation._mesh.run_adaptive`: a step that takes a
+        sizeable orbit onto (nearly) the equilibrium jumped to the trivial solution of the
+        collocation equations, not along the branch; it is rejected (factor 0.25)."""
+        n = self.n_states
+        a_prev = _centred(np.asarray(y[: M * n]).reshape(M, n))
+        a_new = _centred(np.asarray(y_new[: M * n]).reshape(M, n))
+        peak = max([*self.amplitudes, self.first_amplitude])
+        if a_prev > COLLAPSE_FROM * peak and a_new < COLLAPSE_TO * a_prev:
+            return 0.25
+        return 1.0
 
 
 def homoclinic_signature(params: np.ndarray, periods: np.ndarray) -> bool:
@@ -121,6 +138,8 @@ def orbit_branch(system: System, param: str, p, run: AdaptiveRun, options: Conti
         last = len(run.ys) - 2
         run.events = [e for e in run.events if not (e[1] == "fold" and e[0] >= last)]
         status, message = _hopf_end(system, param, p, run, n, meta)
+        if status == "failed":
+            _truncate(run, len(run.ys) - 1)  # the last point is the equilibrium, no orbit
     else:
         params_ = np.array([y[m * n + 1] for y, m in zip(run.ys, run.meshes, strict=True)])
         periods_ = np.array([y[m * n] for y, m in zip(run.ys, run.meshes, strict=True)])
@@ -229,6 +248,13 @@ def _hopf_end(system, param, p, run: AdaptiveRun, n: int, meta: dict) -> tuple[s
     except LOCATION_ERRORS as exc:
         return "hopf", (f"the orbits shrink into an equilibrium near {param}={lam:.8g} "
                         f"(its Hopf point could not be located: {exc})")
+    lams = [float(yy[m * n + 1]) for yy, m in zip(run.ys[-3:], run.meshes[-3:], strict=True)]
+    slack = 2.0 * max(np.ptp(lams), 1e-9 * max(1.0, abs(lam)))
+    if abs(h.param - lam) > slack:
+        # the orbits collapsed, but not into a Hopf point there: never report a point
+        # that is not where the branch ends
+        return "failed", (f"the orbits collapsed onto the equilibrium near {param}={lam:.8g}, "
+                          f"where it has no Hopf point (the nearest is at {h.param:.8g})")
     x_h = np.asarray(h.solution, dtype=float)
     run.ys.append(np.concatenate([np.tile(x_h, M), [2 * np.pi / h.data["omega"], h.param]]))
     run.meshes.append(M)
