@@ -11,7 +11,9 @@ from __future__ import annotations
 
 import dataclasses
 import math
+from pathlib import Path
 
+import numpy as np
 import pytest
 
 from bifid.cbc import defaults_for, forced_campaign, ppcbc_campaign
@@ -68,3 +70,22 @@ def test_derived_ppcbc_settings_measure_the_cycles():
         strict=True,
     ):
         assert a == pytest.approx(exact, rel=0.01)
+
+
+BRUSSELATOR = Path(__file__).resolve().parents[1] / "docs/examples/systems/brusselator.toml"
+
+
+def test_user_system_rests_at_its_equilibrium():
+    """Check the Brusselator (equilibrium (a, b/a) = (1, 1.5), away from the origin): the
+    derived defaults find it from the file's own x0, centre the first PP-CBC target on it
+    (x = a; the derivative's centre is 0), take the frequency of its linearisation
+    (eigenvalues (b - 1 - a²)/2 ± i sqrt(a² - ((b - 1 - a²)/2)²) = -0.25 ± 0.968i) and the
+    virtual rig starts at rest there."""
+    s = get_system(str(BRUSSELATOR))
+    d = defaults_for(s)
+    assert d.equilibrium == pytest.approx({"x": 1.0, "y": 1.5}, abs=1e-10)
+    assert d.omega_guess == pytest.approx(math.sqrt(1.0 - 0.25**2), rel=1e-9)
+    assert d.ppcbc_options().centre == pytest.approx((1.0, 0.0), abs=1e-10)
+    m = d.rig(s).run(2.0)
+    assert m.status == "ok"
+    assert np.max(np.abs(m.signal("x") - 1.0)) < 1e-9

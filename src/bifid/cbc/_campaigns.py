@@ -79,6 +79,22 @@ def _provenance(command: str, **kw: Any) -> dict[str, Any]:
     return run_info(command, **kw)
 
 
+def _values_and_span(
+    values: Sequence[float] | None, span: tuple[float, float] | None, continuation: int
+) -> tuple[tuple[float, ...], tuple[float, float]]:
+    """The scan's values (none for a continuation) and the span ``(start, end)``."""
+    if continuation:
+        if span is None:
+            if not values:
+                raise BifidInputError("a PP-CBC continuation needs a range (start, end).")
+            span = (float(values[0]), float(values[-1]))
+        return (), (float(span[0]), float(span[1]))
+    if not values:
+        raise BifidInputError("a PP-CBC scan needs parameter values.")
+    vals = tuple(float(v) for v in values)
+    return vals, (vals[0], vals[-1])
+
+
 def ppcbc_campaign(
     system: System | str,
     *,
@@ -148,30 +164,17 @@ def ppcbc_campaign(
     s.index(param)
     over = dict(overrides or {})
     s.param_vector(over)
-    if continuation:
-        if span is None:
-            if not values:
-                raise BifidInputError("a PP-CBC continuation needs a range (start, end).")
-            span = (float(values[0]), float(values[-1]))
-        vals: tuple[float, ...] = ()
-        lo, hi = sorted(float(v) for v in span)
-    else:
-        if not values:
-            raise BifidInputError("a PP-CBC scan needs parameter values.")
-        vals = tuple(float(v) for v in values)
-        lo, hi = min(vals), max(vals)
-        span = (vals[0], vals[-1])
+    vals, span = _values_and_span(values, span, continuation)
+    lo, hi = sorted(span)
     dflt = defaults or defaults_for(
         s, over, param=param, param_range=(lo, hi), noise_reference=noise_fraction is not None
     )
-    start = float(span[0]) if continuation else vals[0]
     nz = noise_levels(
         noise, noise_fraction, dflt.noise_reference, list(dflt.outputs or s.states[:1])
     )
     if rig is None:
-        rig = dflt.rig(
-            s, {**over, param: start}, noise=nz, seed=seed or 0, **dict(rig_options or {})
-        )
+        rig_kw = dict(noise=nz, seed=seed or 0, **dict(rig_options or {}))
+        rig = dflt.rig(s, {**over, param: span[0]}, **rig_kw)
     seed = _seed(seed, rig)
     noisy = bool(nz) and any(v > 0 for v in nz.values())
     # with noise, four times the records: the random motion that the controller's noise
@@ -206,13 +209,8 @@ def ppcbc_campaign(
         max_points=int(continuation) if continuation else 200,
     )
     units = next((q.unit for q in s.parameters if q.name == param), "")
-    kwargs = dict(
-        signal_names=list(rig.output_names),
-        param_name=param,
-        param_units=units,
-        system=s.name,
-        source=f"bifid PP-CBC campaign on {type(rig).__name__}",
-    )
+    kwargs = dict(signal_names=list(rig.output_names), param_name=param, param_units=units)
+    kwargs.update(system=s.name, source=f"bifid PP-CBC campaign on {type(rig).__name__}")
     io = dict(out=out, resume=resume, on_point=on_point, on_evaluation=on_evaluation)
     return _run(spec, rig, dflt, kwargs, **io)
 

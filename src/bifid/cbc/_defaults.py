@@ -61,6 +61,9 @@ class CBCDefaults:
     noise_reference : dict
         Amplitudes per output that a relative noise level refers to (the smallest
         limit cycle of the range, or the response at the start of a forced range).
+    equilibrium : dict
+        The free system's equilibrium per state (from the linearisation): the PP-CBC
+        bootstrap centres its first target there.
     origin : dict
         Where each value came from: ``"system"`` (``System.cbc``) or ``"derived"``.
     """
@@ -84,7 +87,12 @@ class CBCDefaults:
     noisy_options: dict[str, Any] = field(default_factory=dict)
     signal_units: dict[str, str] = field(default_factory=dict)
     noise_reference: dict[str, float] = field(default_factory=dict)
+    equilibrium: dict[str, float] = field(default_factory=dict)
     origin: dict[str, str] = field(default_factory=dict)
+
+    def centre(self, x1: str, x2: str) -> tuple[float, float]:
+        """The equilibrium in the phase plane ``(x1, x2)`` (a derivative's is 0)."""
+        return (self.equilibrium.get(x1, 0.0), self.equilibrium.get(x2, 0.0))
 
     def ppcbc_options(self, **overrides: Any):
         """:class:`~bifid.cbc.PPCBCOptions` with these defaults (and overrides)."""
@@ -98,6 +106,9 @@ class CBCDefaults:
             bootstrap_gains=self.bootstrap_gains,
             filter_hz=self.filter_hz,
         )
+        x1, x2 = overrides.get("x1", self.x1), overrides.get("x2", self.x2)
+        if any(self.centre(x1, x2)):
+            kw["centre"] = self.centre(x1, x2)
         kw.update(overrides)
         return PPCBCOptions(**kw)
 

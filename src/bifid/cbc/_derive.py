@@ -12,15 +12,19 @@
   an S-curve or FRC — and ``kp, kd`` five times lower with noisy measurements (the
   controller feeds the noise back as a force).
 - **Self-excited systems**: the limit cycles of the model over the campaign's range
-  (:func:`bifid.continuation.continue_from_hopf`, the Hopf point searched for in the range
-  widened on both sides by its width or a quarter of its values, whichever is larger)
-  give the frequency guess, the scan's amplitude grid (half the smallest to 1.15 times
-  the largest first-harmonic amplitude of ``x1``, spaced at most half the smallest
-  distance between coexisting cycles) and the noise reference (the smallest centred
-  amplitude per output). The gains are the candidates
-  ``kp ∈ {0, 0.3, 1} ω²/b``, ``kd ∈ {0.1, 0.3, 1, 3} ω/b`` on ``(x1, ẋ1)`` whose largest
-  non-trivial *controlled* Floquet multiplier over three cycles of the range (smallest,
-  middle, largest) is smallest (thesis Fig. 3.9).
+  (:func:`model_cycles`: the Hopf point searched for in the range widened on both sides
+  by its width or half its values, whichever is larger, four times more where that
+  window holds none) give the frequency guess, the scan's amplitude grid (half the
+  smallest to 1.15 times the largest first-harmonic amplitude of ``x1``, spaced at most
+  half the smallest distance between coexisting cycles; the scan goes on past it while
+  an orbit lies above) and the noise reference (the smallest centred amplitude per
+  output). Where some of those cycles are unstable, the gains are the candidates
+  ``kp ∈ {0, 0.3, 1} ω²/b``, ``kd ∈ {0.1, 0.3, 1, 3} ω/b`` on ``(x1, ẋ1)`` whose
+  largest non-trivial *controlled* Floquet multiplier over three cycles of the range
+  (smallest, middle, largest) is smallest (thesis Fig. 3.9); stable cycles only need
+  the controller to lock, and keep ``kp = ω²/(2b)``, ``kd = ω/(2b)``.
+- The equilibrium (Newton from ``System.x0``, else from the origin) is where the rig
+  rests and where the first PP-CBC target is centred.
 """
 
 from __future__ import annotations
@@ -36,10 +40,10 @@ import numpy as np
 from bifid.cbc._controllers import PDController
 from bifid.cbc._stability import augmented_params, controlled_rhs, orbit_polar_target
 from bifid.continuation import ContinuationOptions, continue_from_hopf, floquet_multipliers
-from bifid.errors import BifidInputError, ConvergenceWarning
+from bifid.errors import BifidInputError, ConvergenceError, ConvergenceWarning
 from bifid.systems import System
 
-__all__ = ["derive", "linearisation"]
+__all__ = ["derive", "linearisation", "model_cycles"]
 
 
 def _nice(x: float) -> float:
@@ -52,24 +56,38 @@ def _nice(x: float) -> float:
 
 
 def linearisation(system: System, p: jnp.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(x_eq, eigenvalues)`` at the equilibrium nearest the origin (Newton from 0;
-    forced systems without force)."""
+    """``(x_eq, eigenvalues)`` at the system's equilibrium (forced systems without force):
+    Newton from the system's own starting guess ``System.x0``, else from the origin; the
+    first start that converges wins."""
     if system.kind == "forced":
         p = p.at[system.index("F")].set(0.0)
     f = jax.jit(lambda x: system.field(x, p))
     jac = jax.jit(jax.jacfwd(lambda x: system.field(x, p)))
-    x = jnp.zeros(system.n_states)
+    starts = [np.zeros(system.n_states)]
+    if system.x0 is not None:
+        starts.insert(0, np.asarray(system.x0, dtype=float))
+    x = starts[0]
+    for start in starts:
+        x, ok = _newton(f, jac, start)
+        if ok:
+            break
+    return x, np.linalg.eigvals(np.asarray(jac(jnp.asarray(x))))
+
+
+def _newton(f, jac, x0: np.ndarray) -> tuple[np.ndarray, bool]:
+    """Newton's method on ``f(x) = 0`` from ``x0``: ``(x, converged)`` (``x0`` when not)."""
+    x = jnp.asarray(x0)
     for _ in range(30):
-        J = np.asarray(jac(x))
         try:
-            dx = np.linalg.solve(J, -np.asarray(f(x)))
+            dx = np.linalg.solve(np.asarray(jac(x)), -np.asarray(f(x)))
         except np.linalg.LinAlgError:
+            break
+        if not np.all(np.isfinite(dx)):
             break
         x = x + dx
         if float(np.max(np.abs(dx))) <= 1e-12 * (1 + float(np.max(np.abs(x)))):
-            break
-    x = np.asarray(x) if np.all(np.isfinite(np.asarray(x))) else np.zeros(system.n_states)
-    return x, np.linalg.eigvals(np.asarray(jac(jnp.asarray(x))))
+            return np.asarray(x), True
+    return np.asarray(x0, dtype=float), False
 
 
 def _input_size(system: System, p: jnp.ndarray) -> float:
@@ -91,7 +109,7 @@ def derive(
     skipped when ``given`` holds all it would set (the noise reference only counts when
     asked for)."""
     p = system.param_vector(params)
-    _, lam = linearisation(system, p)
+    x_eq, lam = linearisation(system, p)
     osc = [lv for lv in lam if abs(lv.imag) > 1e-9]
     omega = (
         abs(min(osc, key=lambda lv: abs(lv.real) / abs(lv)).imag)
@@ -108,6 +126,7 @@ def derive(
         "settle_periods": 8.0,
         "measure_periods": 3.0,
         "derivative_cutoff": _nice(10.0 * omega / (2 * math.pi)),
+        "equilibrium": {name: float(v) for name, v in zip(system.states, x_eq, strict=True)},
     }
     if system.kind == "forced":
         kp, kd = 0.5 * omega**2 / b, 0.5 * omega / b
@@ -140,57 +159,92 @@ def derive(
     if not cycles:
         return out
     out.update(_from_cycles(system, cycles, x1))
-    if not {"kp", "kd"} <= given and not ({"x1", "x2"} & given):
+    unstable = any(not c[3] for c in cycles)
+    if unstable and not {"kp", "kd"} <= given and not ({"x1", "x2"} & given):
+        # only unstable cycles need gains that stabilise them (the search integrates the
+        # controlled system for every candidate: minutes for a new system); stable ones
+        # keep the gains of the linearisation
         out.update(_gains(system, p, param, cycles, x1, f"{x1}_dot", out["omega_guess"], b))
     return out
 
 
+def model_cycles(
+    system: System, p, param: str, lo: float, hi: float, ds_max: float = 0.1
+) -> tuple[list, float]:
+    """The model's cycle branches (:func:`~bifid.continuation.continue_from_hopf`) over
+    ``[lo, hi]`` widened on both sides by ``span``, its width or half its values, whichever
+    is larger (the Hopf point may lie well outside a campaign's range); a window without a
+    Hopf point is widened four times, up to three times; steps of at most ``ds_max``
+    times ``span``. Returns ``(branches, span)``.
+
+    Raises
+    ------
+    ConvergenceError
+        If no window holds a Hopf point with cycles.
+    """
+    span = max(hi - lo, 0.5 * max(abs(lo), abs(hi)), 1e-9)
+    reason = "no Hopf point"
+    for _ in range(4):
+        a, b = lo - span, hi + span
+        opts = ContinuationOptions(
+            ds=1e-3, ds_max=ds_max * span, ds_min=1e-9, p_min=a, p_max=b, max_steps=400
+        )
+        try:
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")
+                _, branches = continue_from_hopf(
+                    system, param, a, b, p=p, n_mesh=32, orbit_options=opts
+                )
+        except (BifidInputError, ArithmeticError, ValueError, ConvergenceError) as exc:
+            reason = str(exc)
+        else:
+            if branches:
+                return branches, span
+        span *= 4.0
+    raise ConvergenceError(
+        f"no limit cycles of {system.name!r} found by continuation near {param} in "
+        f"[{lo:g}, {hi:g}] ({reason})"
+    )
+
+
 def _cycles(
     system: System, p, param: str, param_range: tuple[float, float]
-) -> list[tuple[float, np.ndarray, float]]:
-    """``(λ, orbit (M, n), period)`` of the model's limit cycles in the range."""
+) -> list[tuple[float, np.ndarray, float, bool]]:
+    """``(λ, orbit (M, n), period, stable)`` of the model's limit cycles in the range."""
     lo, hi = sorted(float(v) for v in param_range)
-    # the Hopf point may lie well outside the campaign's range: search a generous window
-    span = max(hi - lo, 0.25 * max(abs(lo), abs(hi)), 1e-9)
-    a, b = lo - span, hi + span
-    opts = ContinuationOptions(
-        ds=1e-3, ds_max=span / 10, ds_min=1e-9, p_min=a, p_max=b, max_steps=400
-    )
     try:
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore")
-            _, branches = continue_from_hopf(
-                system, param, a, b, p=p, n_mesh=32, orbit_options=opts
-            )
-    except (BifidInputError, ArithmeticError, ValueError) as exc:
+        branches, span = model_cycles(system, p, param, lo, hi)
+    except ConvergenceError as exc:
         warnings.warn(
-            f"CBC defaults of {system.name!r}: no limit cycles found by "
-            f"continuation ({exc}); generic amplitude grid.",
+            f"CBC defaults of {system.name!r}: {exc}; generic amplitude grid.",
             ConvergenceWarning,
             stacklevel=4,
         )
         return []
     out = []
+    # a range of one value (or narrower than the branch's steps) takes the nearest cycles
+    pad = max(0.05 * (hi - lo), 0.1 * span)  # (span / 10: the largest step)
     for br in branches:
         M = int(br.meta.get("n_mesh", 32))
         n = system.n_states
         for i in range(len(br)):
             lam = float(br.params[i])
-            if lo <= lam <= hi:
-                out.append(
-                    (lam, br.solutions[i, : M * n].reshape(M, n), float(br.data["period"][i]))
-                )
+            if lo - pad <= lam <= hi + pad:
+                orbit = br.solutions[i, : M * n].reshape(M, n)
+                out.append((lam, orbit, float(br.data["period"][i]), bool(br.stable[i])))
     return out
 
 
 def _from_cycles(system: System, cycles, x1: str) -> dict[str, Any]:
     i1 = system.state_index(x1)
     first = []
-    for lam, orbit, _ in cycles:
+    for lam, orbit, *_ in cycles:
         c = np.fft.rfft(orbit[:, i1]) / orbit.shape[0]
         first.append((lam, 2.0 * abs(c[1])))
     amps = np.array([a for _, a in first])
-    lo_a, hi_a = 0.5 * float(np.min(amps)), 1.15 * float(np.max(amps))
+    # (a window that reaches the Hopf point holds cycles of vanishing amplitude)
+    lo_a = 0.5 * float(np.min(amps[amps > 0.01 * np.max(amps)]))
+    hi_a = 1.15 * float(np.max(amps))
     # coexisting cycles: the smallest distance between amplitudes at nearby parameters
     lams = np.array([lam for lam, _ in first])
     tol = 1e-3 * max(float(np.ptp(lams)), 1e-12)
@@ -206,8 +260,8 @@ def _from_cycles(system: System, cycles, x1: str) -> dict[str, Any]:
     reference = {}
     for name in system.states:
         i = system.state_index(name)
-        reference[name] = float(min(np.max(np.abs(o[:, i] - o[:, i].mean())) for _, o, _ in cycles))
-    periods = np.array([T for _, _, T in cycles])
+        reference[name] = min(float(np.max(np.abs(c[1][:, i] - c[1][:, i].mean()))) for c in cycles)
+    periods = np.array([c[2] for c in cycles])
     return {
         "amplitude_range": (lo_a, hi_a),
         "n_amplitudes": n,
@@ -231,14 +285,14 @@ def _gains(
     ]
     targets, pvs = [], []
     for k in picks:
-        lam, orbit, _ = cycles[k]
+        lam, orbit, *_ = cycles[k]
         pvs.append(np.asarray(p.at[system.index(param)].set(lam)))
         targets.append(orbit_polar_target(orbit, system, x1, x2, 10, p=pvs[-1]))
     rhs, _ = controlled_rhs(system, PDController(1.0, 1.0, x1, x2), targets[0])
     orbits, periods, qs = [], [], []
     for kp, kd in candidates:
         for j, k in enumerate(picks):
-            _, orbit, period = cycles[k]
+            _, orbit, period, _ = cycles[k]
             orbits.append(orbit)
             periods.append(period)
             qs.append(augmented_params(pvs[j], PDController(kp, kd, x1, x2), targets[j]))

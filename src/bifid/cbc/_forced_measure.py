@@ -115,22 +115,20 @@ class ForcedCBCOptions(ProtocolOptions):
     stored_periods: float = 20.0
 
     def __post_init__(self) -> None:
-        if int(self.n_harmonics) < 1:
-            raise BifidInputError(f"n_harmonics must be >= 1, got {self.n_harmonics!r}.")
-        for name in (
-            "settle_periods",
-            "measure_periods",
-            "tol",
-            "ds",
-            "ds_max",
-            "watch_periods",
-            "precision",
-            "max_measure_periods",
-            "stored_periods",
-        ):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise BifidInputError(f"{name} must be a positive number, got {v!r}.")
+        self.check(
+            (
+                "settle_periods",
+                "measure_periods",
+                "tol",
+                "ds",
+                "ds_max",
+                "watch_periods",
+                "precision",
+                "max_measure_periods",
+                "stored_periods",
+            ),
+            ("picard_max", "max_points", "newton_max"),
+        )
         if self.max_measure_periods < self.measure_periods:
             raise BifidInputError(
                 f"max_measure_periods ({self.max_measure_periods}) must be at least "
@@ -138,9 +136,6 @@ class ForcedCBCOptions(ProtocolOptions):
             )
         if self.ds > self.ds_max:
             raise BifidInputError(f"ds ({self.ds}) must not exceed ds_max ({self.ds_max}).")
-        for name in ("picard_max", "max_points", "newton_max"):
-            if int(getattr(self, name)) < 1:
-                raise BifidInputError(f"{name} must be a positive integer.")
         PDController(self.kp, self.kd, self.signal, f"{self.signal}_dot")
 
     @property

@@ -37,7 +37,7 @@ import scipy.linalg
 
 from bifid.cbc._rig import AbstractRig, Measurement
 from bifid.continuation import AbstractCorrector, Correction
-from bifid.errors import ConvergenceError
+from bifid.errors import BifidInputError, ConvergenceError
 
 __all__ = [
     "BroydenCorrector",
@@ -71,6 +71,19 @@ class ProtocolOptions:
 
     def to_json(self) -> dict[str, Any]:
         return asdict(self)  # type: ignore[call-overload]
+
+    def check(self, positive: tuple[str, ...], counts: tuple[str, ...]) -> None:
+        """Raise :class:`~bifid.errors.BifidInputError` unless the fields ``positive``
+        are finite numbers > 0, ``counts`` integers >= 1 and ``n_harmonics`` >= 1."""
+        if int(getattr(self, "n_harmonics", 1)) < 1:
+            raise BifidInputError(f"n_harmonics must be >= 1, got {self.n_harmonics!r}.")
+        for name in positive:
+            v = getattr(self, name)
+            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
+                raise BifidInputError(f"{name} must be a positive number, got {v!r}.")
+        for name in counts:
+            if int(getattr(self, name)) < 1:
+                raise BifidInputError(f"{name} must be a positive integer.")
 
 
 @dataclass

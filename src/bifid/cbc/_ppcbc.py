@@ -30,7 +30,7 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from bifid.cbc._controllers import AbstractTarget, PDController, target_to_json
-from bifid.cbc._measured import Evaluation, MeasuredProblem, ProtocolOptions
+from bifid.cbc._measured import Evaluation, MeasuredProblem, ProtocolOptions, run
 from bifid.cbc._rig import AbstractRig, Measurement
 from bifid.cbc._stability import switch_off_test
 from bifid.errors import BifidInputError
@@ -91,6 +91,17 @@ class PPCBCOptions(ProtocolOptions):
     max_turn : float
         Continuation: largest angle [deg] between successive secants before the next
         step is halved (resolves the cycle folds).
+    precision : float
+        Largest noise floor of a converged point relative to ``a0*``: while it is larger,
+        the record at the converged target is doubled (up to ``max_extension`` times the
+        measured periods) and the point checked again. Near a Hopf point the response
+        follows the target closely, so a control error within the floor moves the
+        measured amplitude by several times the floor.
+    max_extension : float
+        Longest record of a converged point, in multiples of ``measure_periods``.
+    centre : (float, float)
+        Where the bootstrap's first target is centred in ``(x1, x2)``: the rig's rest
+        position (the system's equilibrium).
     """
 
     x1: str = "h"
@@ -114,29 +125,29 @@ class PPCBCOptions(ProtocolOptions):
     bootstrap_gains: tuple[float, float] | None = None
     filter_hz: float | None = None
     max_turn: float = 20.0
+    precision: float = 2e-4
+    max_extension: float = 8.0
+    centre: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
         if self.target not in ("polar", "elliptic"):
             raise BifidInputError(f"target must be 'polar' or 'elliptic', got {self.target!r}.")
-        if int(self.n_harmonics) < 1:
-            raise BifidInputError(f"n_harmonics must be >= 1, got {self.n_harmonics!r}.")
-        for name in (
-            "settle_periods",
-            "measure_periods",
-            "tol",
-            "fd_step",
-            "watch_periods",
-            "amp_tol",
-            "max_invasiveness",
-        ):
-            v = getattr(self, name)
-            if not (isinstance(v, (int, float)) and math.isfinite(v) and v > 0):
-                raise BifidInputError(f"{name} must be a positive number, got {v!r}.")
+        self.check(
+            (
+                "settle_periods",
+                "measure_periods",
+                "tol",
+                "fd_step",
+                "watch_periods",
+                "amp_tol",
+                "max_invasiveness",
+                "precision",
+                "max_extension",
+            ),
+            ("picard_max", "secant_max", "newton_max"),
+        )
         if self.measure_periods < 1:
             raise BifidInputError("measure_periods must be >= 1 (projections over whole periods).")
-        for name in ("picard_max", "secant_max", "newton_max"):
-            if int(getattr(self, name)) < 1:
-                raise BifidInputError(f"{name} must be a positive integer.")
         self.controller  # noqa: B018 - validates gains, names and filter
 
     @property
@@ -298,6 +309,32 @@ class PPCBCProblem(MeasuredProblem):
 
     def step_tolerance(self, ev: Evaluation) -> np.ndarray:
         return np.concatenate([self.opts.amp_tol * abs(float(ev.y[0])) / self._scales, [math.inf]])
+
+    def _periods(self, resp: Response) -> float:
+        return len(resp.m) * resp.omega / (2.0 * math.pi * resp.m.sample_rate)
+
+    def precise(self, ev: Evaluation) -> bool:
+        """The floor is below ``precision`` (of ``a0*``), or the record at its longest."""
+        resp: Response = ev.info
+        longest = self.opts.max_extension * self.opts.measure_periods
+        return (
+            resp.floor <= self.opts.precision * abs(float(ev.y[0]))
+            or self._periods(resp) >= longest - 0.5
+        )
+
+    def extend(self, ev: Evaluation) -> Evaluation | None:
+        """Twice as long a record at the same target (the rig is already there)."""
+        resp: Response = ev.info
+        periods = self._periods(resp)
+        longest = self.opts.max_extension * self.opts.measure_periods
+        if periods >= longest - 0.5:
+            return None
+        n_periods = min(2.0 * round(periods), longest)
+        m = run(self.rig, n_periods * 2.0 * math.pi / resp.omega + 2.0 / self.rig.sample_rate)
+        new = self.family.analyse(m, resp.omega)
+        self.omega = new.omega
+        floor = np.full(self.n, new.floor) / self._scales
+        return Evaluation(ev.y.copy(), ev.y[: self.n] - new.vector, floor, new)
 
     def fd_steps(self, y: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         h = np.concatenate(

@@ -39,6 +39,9 @@ from bifid.signal import (
 
 __all__ = ["Response", "TargetFamily", "bootstrap"]
 
+# points of a fitted curve read in polar terms (spectrally accurate: see _from_fit)
+_CURVE_POINTS = 256
+
 
 @dataclass
 class Response:
@@ -135,7 +138,12 @@ class TargetFamily:
 
     # ------------------------------------------------------------------ responses
     def _from_fit(self, c1: np.ndarray, c2: np.ndarray) -> np.ndarray:
-        """The family's unknowns of the curve given by time-domain Fourier fits."""
+        """The family's unknowns of the curve given by time-domain Fourier fits.
+
+        Polar: ``r(φ)`` is projected over the fitted curve sampled uniformly in its own
+        phase ``θ``, with the exact ``dφ/dθ = (ξ1 ξ2' - ξ2 ξ1') / r²`` of the series as the
+        quadrature weight: the integrand is smooth and periodic in ``θ``, so the rule is
+        spectrally accurate on a short grid (eq. 3.24)."""
         q = (c1.shape[0] - 1) // 2
         if not self.polar:
             A1 = math.hypot(c1[1], c1[q + 1])
@@ -143,8 +151,18 @@ class TargetFamily:
             # sense of rotation in (x1, x2): sign of the area swept (a1 b2 - b1 a2)
             rot = 1.0 if (c1[1] * c2[q + 1] - c1[q + 1] * c2[1]) >= 0 else -1.0
             return np.array([A1, rot * A2 / max(A1, 1e-300), c1[0], c2[0]])
-        grid = uniform_basis(2048, q)  # the fitted curve on 2048 uniform phases
-        return self._polar_of(grid @ c1, grid @ c2)
+        grid = uniform_basis(_CURVE_POINTS, q)
+        j = np.arange(1, q + 1, dtype=float)
+        x = grid @ np.column_stack([c1, c2])
+        dx = grid @ np.column_stack(
+            [np.concatenate([[0.0], j * c[q + 1 :], -j * c[1 : q + 1]]) for c in (c1, c2)]
+        )
+        xi = (x - np.asarray(self.origin)) @ self.inv.T
+        dxi = dx @ self.inv.T
+        r2 = np.maximum(xi[:, 0] ** 2 + xi[:, 1] ** 2, 1e-300)
+        dphi = (xi[:, 0] * dxi[:, 1] - xi[:, 1] * dxi[:, 0]) / r2
+        phi = np.arctan2(xi[:, 1], xi[:, 0])
+        return fourier_project(np.sqrt(r2), phi, self.o.n_harmonics, weights=np.abs(dphi))
 
     def _polar_of(self, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
         d1, d2 = x1 - self.origin[0], x2 - self.origin[1]
@@ -179,22 +197,24 @@ class TargetFamily:
         theta = om * np.arange(n) / m.sample_rate
         nfit = max(2 * self.o.n_harmonics, 12) if self.polar else 3
         B = fourier_basis(theta, nfit)  # computed once, its rows reused for every period
-        c = fourier_project(np.column_stack([x1, x2]), theta, nfit, basis=B)
-        vec = self._from_fit(c[:, 0], c[:, 1])
-        floor = coefficient_noise(x1 - B @ c[:, 0]) * float(np.hypot(*self.inv[:, 0]))
         per = 2.0 * math.pi / om * m.sample_rate
         k_per = round(n / per)
-        if k_per >= 3:
-            vals = []
+        if k_per < 3:
+            c = fourier_project(np.column_stack([x1, x2]), theta, nfit, basis=B)
+            vec = self._from_fit(c[:, 0], c[:, 1])
+            floor = coefficient_noise(x1 - B @ c[:, 0]) * float(np.hypot(*self.inv[:, 0]))
+        else:
+            vals, resid = [], []
             for k in range(k_per):
                 lo, hi = round(k * per), round((k + 1) * per)
-                ck = fourier_project(
-                    np.column_stack([x1[lo:hi], x2[lo:hi]]), theta[lo:hi], nfit, basis=B[lo:hi]
-                )
+                xk = np.column_stack([x1[lo:hi], x2[lo:hi]])
+                ck = fourier_project(xk, theta[lo:hi], nfit, basis=B[lo:hi])
                 vals.append(self._from_fit(ck[:, 0], ck[:, 1]))
+                resid.append(x1[lo:hi] - B[lo:hi] @ ck[:, 0])
             v = np.asarray(vals)
             vec = v.mean(axis=0)
             sd = np.std(v, axis=0, ddof=1) * self.scales(vec)
+            floor = coefficient_noise(np.concatenate(resid)) * float(np.hypot(*self.inv[:, 0]))
             floor = max(floor, 3.0 * float(np.max(sd)) / math.sqrt(k_per))
         # a record that scatters by more than 1 % is not a steady orbit, not noise: cap the
         # floor so that it can never widen a tolerance enough to accept it
@@ -286,13 +306,15 @@ def bootstrap(
         aspect0 = -omega_guess if derivative else 1.0
     fam = TargetFamily(boot)
     omega = omega_guess
+    # the first ellipse is centred on the rest position (a derivative's centre is 0)
+    centre = (opts.centre[0], 0.0 if boot.x2 != opts.x2 else opts.centre[1])
     r = None
     a_try = a_start
     # a target too small against the measurement noise can fail to lock (the angle of a
     # noisy (x1, ẋ1) is noise): try twice and four times the amplitude (up to a_max)
     tries = [a for a in (a_start, 2.0 * a_start, 4.0 * a_start) if a_max is None or a <= a_max]
     for a_try in tries or [a_start]:
-        vec = np.array([a_try, aspect0, 0.0, 0.0])
+        vec = np.array([a_try, aspect0, centre[0], centre[1]])
         for _ in range(4):
             r = fam.hold(rig, fam.target(vec), omega)
             # learn the ellipse only from a response that is not mostly noise

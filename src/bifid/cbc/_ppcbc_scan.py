@@ -222,14 +222,14 @@ def _refine(
     return Evaluation(y, root.vec - root.resp.vector, floor, root.resp), corrector
 
 
-def _next_amplitude(grid: np.ndarray, k: int, last: _Eval | None, extra: int = 8) -> float | None:
-    """The ``k``-th target amplitude: the grid's, then up to ``extra`` more with its last
-    spacing while the last control error is negative (the response larger than the
-    target: an orbit lies above the grid); None at the end."""
+def _next_amplitude(grid: np.ndarray, k: int, last: _Eval | None) -> float | None:
+    """The ``k``-th target amplitude: the grid's, then up to as many more (at least 8)
+    with its last spacing while the last control error is negative (the response larger
+    than the target: an orbit lies above the grid); None at the end."""
     if k < grid.size:
         return float(grid[k])
     j = k - grid.size + 1
-    if j > extra or last is None or last.xi >= 0:
+    if j > max(8, grid.size) or last is None or last.xi >= 0:
         return None
     return float(grid[-1]) + j * float(grid[-1] - grid[-2])
 
@@ -259,7 +259,7 @@ def scan(
         first-harmonic amplitude of ``x1`` -- for the polar one) on which sign changes of
         ``Ξ`` are looked for. Zeros closer than the grid spacing can be missed. Where
         ``Ξ < 0`` at the end of the grid (an orbit lies above it) the grid goes on with
-        its last spacing, up to 8 more amplitudes.
+        its last spacing, up to as many more amplitudes (at least 8).
     options : PPCBCOptions
     omega_guess : float
         Rough oscillation frequency [rad/s] to start with.
@@ -331,14 +331,20 @@ def scan(
             # the rig moved (refinement, stability test): re-settle on this grid point
             prev = scanner(float(a), sign_only=True)
     except RigTripped as exc:
-        if k > grid.size or (out.points and prev is not None and prev.xi > 0):
+        # a trip on a requested target is a failure (the targets above it were not
+        # scanned); one on the extension past the grid, above the last orbit, is not
+        if k > grid.size and out.points:
             out.warnings.append(
-                f"PP-CBC at {param}={value:g}: the rig tripped at "
-                f"A* = {a:.4g}, above the last orbit found; larger targets "
-                f"were not scanned ({exc})"
+                f"PP-CBC at {param}={value:g}: the rig tripped at A* = {a:.4g}, beyond the "
+                f"amplitude grid and above the last orbit found ({exc})"
             )
         else:
-            fail(f"the rig tripped near A* = {a:.4g}: {exc}", a_star=a)
+            where = "above the last orbit found" if out.points else "before any orbit was found"
+            fail(
+                f"the rig tripped at A* = {a:.4g} of the amplitude grid, {where}; larger "
+                f"targets were not scanned: {exc}",
+                a_star=a,
+            )
     except ConvergenceError as exc:
         fail(f"the controller did not hold the target near A* = {a:.4g}: {exc}", a_star=a)
     out.omega = scanner.omega

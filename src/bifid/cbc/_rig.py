@@ -97,14 +97,24 @@ class Measurement:
         """The last ``n`` samples."""
         n = max(0, min(int(n), len(self)))
         sl = slice(len(self) - n, None)
-        extra = {k: (v[sl] if isinstance(v, np.ndarray) and v.shape[:1] == self.time.shape
-                     else v) for k, v in self.extra.items()}
+        extra = {
+            k: (v[sl] if isinstance(v, np.ndarray) and v.shape[:1] == self.time.shape else v)
+            for k, v in self.extra.items()
+        }
         return Measurement(
-            time=self.time[sl], outputs=self.outputs[sl], output_names=self.output_names,
-            derivatives=self.derivatives[sl], control=self.control[sl],
-            target=self.target[sl], force=self.force[sl], phase=self.phase[sl],
-            sample_rate=self.sample_rate, saturated=self.saturated, extra=extra,
-            status=self.status, reason=self.reason,
+            time=self.time[sl],
+            outputs=self.outputs[sl],
+            output_names=self.output_names,
+            derivatives=self.derivatives[sl],
+            control=self.control[sl],
+            target=self.target[sl],
+            force=self.force[sl],
+            phase=self.phase[sl],
+            sample_rate=self.sample_rate,
+            saturated=self.saturated,
+            extra=extra,
+            status=self.status,
+            reason=self.reason,
         )
 
 
@@ -165,5 +175,8 @@ class AbstractRig(abc.ABC):
 
     def describe(self) -> Mapping[str, Any]:
         """Settings worth recording with a dataset (JSON-able)."""
-        return {"rig": type(self).__name__, "outputs": list(self.output_names),
-                "sample_rate": self.sample_rate}
+        return {
+            "rig": type(self).__name__,
+            "outputs": list(self.output_names),
+            "sample_rate": self.sample_rate,
+        }

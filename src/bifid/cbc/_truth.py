@@ -14,7 +14,9 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from bifid.continuation import ContinuationOptions, continue_from_hopf, frc, scurve
+from bifid.cbc._derive import model_cycles
+from bifid.continuation import frc, scurve
+from bifid.continuation._diagram import diagram_of
 from bifid.continuation.truth import centred_amplitudes, correct_orbit
 from bifid.errors import BifidInputError, ConvergenceError
 from bifid.systems import System
@@ -32,24 +34,16 @@ def lco_truth(
     signals: Sequence[str],
     x1: str,
 ) -> dict | None:
-    """The model's limit cycles over ``[lo, hi]`` (widened by its width or a quarter of its
-    values, whichever is larger, on both sides) by
-    continuation, and each measured point compared with the orbit Newton-corrected at its
-    own parameter from the nearest branch orbit (``truth_amplitude``, ``relative_error``,
-    ``truth_stable`` added to the point dicts). None when continuation finds no cycles."""
-    import warnings
-
-    span = max(hi - lo, 0.25 * max(abs(lo), abs(hi)), 1e-9)
-    a, b = lo - span, hi + span
-    opts = ContinuationOptions(ds=1e-3, ds_max=0.3, ds_min=1e-9, p_min=a, p_max=b, max_steps=400)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        try:
-            _, branches = continue_from_hopf(
-                system, param, a, b, p=p, n_mesh=32, orbit_options=opts
-            )
-        except (BifidInputError, ConvergenceError):
-            return None
+    """The model's limit cycles over ``[lo, hi]`` by continuation
+    (:func:`bifid.cbc._derive.model_cycles`, steps of at most 1/30 of the window), and
+    each measured point compared with the orbit Newton-corrected at its own parameter from
+    the nearest branch orbit (``truth_amplitude``, ``relative_error``, ``truth_stable``
+    added to the point dicts). Returns the branch's ``param``, ``stable``, ``amplitude``
+    per signal and its ``diagram``; None when continuation finds no cycles."""
+    try:
+        branches, _ = model_cycles(system, p, param, lo, hi, ds_max=1 / 30)
+    except ConvergenceError:
+        return None
     n = system.n_states
     orbits = []
     for br in branches:
@@ -70,6 +64,7 @@ def lco_truth(
         "param": np.array([o[0] for o in orbits]),
         "stable": np.array([o[3] for o in orbits]),
         "amplitude": {s: amps[:, system.state_index(s)] for s in signals},
+        "diagram": diagram_of("bifurcation", branches, source="continuation"),
     }
     i1 = system.state_index(x1)
     for pt in points:
@@ -98,7 +93,8 @@ def forced_truth(
     system: System, p, protocol: str, fixed: float, lo: float, hi: float, signal: str
 ) -> tuple[dict, list[dict]] | None:
     """The model's S-curve (``protocol="scurve"``, ``Ω = fixed``) or FRC (``γ = fixed``)
-    over the range by continuation, and its folds; None when continuation fails."""
+    over the range by continuation (``curve``: forcing or frequency, amplitude, stable and
+    its ``diagram``), and its folds; None when continuation fails."""
     import warnings
 
     with warnings.catch_warnings():
@@ -115,6 +111,7 @@ def forced_truth(
         key: np.asarray(br.data[key]),
         "amplitude": np.asarray(br.data["observed_amplitude"]),
         "stable": np.asarray(br.stable),
+        "diagram": diagram_of(protocol, [br], source="continuation"),
     }
     folds = [{key: sp.param, "amplitude": sp.data.get("amplitude")} for sp in br.special("fold")]
     return curve, folds

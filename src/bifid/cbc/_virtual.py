@@ -103,7 +103,8 @@ class VirtualRig(AbstractRig):
     seed : int
         Seed of the measurement noise.
     x0 : array, optional
-        Initial state (default: the origin).
+        Initial state (default: the system's own starting guess ``System.x0``, else the
+        origin).
     block : int
         Samples per compiled block of the JAX engine.
     record_states : bool
@@ -169,6 +170,8 @@ class VirtualRig(AbstractRig):
         self._seed = int(seed)
         self._rng = np.random.default_rng(self._seed)
         self.trips = 0
+        if x0 is None:
+            x0 = system.x0
         x = np.zeros(system.n_states) if x0 is None else np.asarray(x0, dtype=float)
         if x.shape != (system.n_states,) or not np.all(np.isfinite(x)):
             raise BifidInputError(

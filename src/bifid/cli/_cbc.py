@@ -191,26 +191,9 @@ def cbc_cmd(
         system = get_system(system_name)
         overrides = cli.parse_sets(sets)
         system.param_vector(overrides)
-        if protocol not in ("ppcbc", "scurve", "frc"):
-            raise BifidInputError(f"--protocol must be ppcbc, scurve or frc, got {protocol!r}.")
-        if protocol == "ppcbc" and system.kind != "autonomous":
-            raise BifidInputError(f"{system_name!r} is forced: use --protocol scurve or frc.")
-        if protocol != "ppcbc" and system.kind != "forced":
-            raise BifidInputError(f"{system_name!r} is autonomous: use --protocol ppcbc.")
+        _check_protocol(system, system_name, protocol)
         cli.check_outputs(out=out, plot=plot, force=force, resume=resume)
-        options: dict[str, Any] = {
-            k: v
-            for k, v in dict(
-                kp=kp,
-                kd=kd,
-                n_harmonics=cli.option_value("--n-harmonics", n_harmonics, ge=1, integer=True),
-                settle_periods=cli.option_value("--settle-periods", settle, gt=0),
-                measure_periods=cli.option_value("--measure-periods", measure, ge=1),
-                tol=cli.option_value("--tol", tol, gt=0),
-                stability=stability,
-            ).items()
-            if v is not None
-        }
+        options = _protocol_options(kp, kd, n_harmonics, settle, measure, tol, stability)
         rig_options: dict[str, Any] = {"derivative": derivative}
         if sample_rate is not None:
             rig_options["sample_rate"] = cli.option_value("--sample-rate", sample_rate, gt=0)
@@ -235,28 +218,56 @@ def cbc_cmd(
             key = "forcing" if protocol == "scurve" else "omega"
         diagram = result.diagram
         payload = diagram.to_json()
+        model = None
         if truth and (plot is not None or json_out):
-            _truth(system, overrides, protocol, diagram, payload, plot, key)
-        n_new = len(result.points)
-        summary = (
-            f"{system.name}: {protocol} CBC recorded {n_new} points to {out}"
+            model = _truth(system, overrides, protocol, diagram, payload)
+        if plot is not None:
+            _plot(system, protocol, diagram, model, plot, payload)
+        _finish(system, protocol, result, payload, key, out, resume, json_out)
+
+
+def _check_protocol(system, system_name: str, protocol: str) -> None:
+    if protocol not in ("ppcbc", "scurve", "frc"):
+        raise BifidInputError(f"--protocol must be ppcbc, scurve or frc, got {protocol!r}.")
+    if protocol == "ppcbc" and system.kind != "autonomous":
+        raise BifidInputError(f"{system_name!r} is forced: use --protocol scurve or frc.")
+    if protocol != "ppcbc" and system.kind != "forced":
+        raise BifidInputError(f"{system_name!r} is autonomous: use --protocol ppcbc.")
+
+
+def _protocol_options(kp, kd, n_harmonics, settle, measure, tol, stability) -> dict[str, Any]:
+    """The protocol options given on the command line, each checked."""
+    options = dict(
+        kp=cli.option_value("--kp", kp),
+        kd=cli.option_value("--kd", kd),
+        n_harmonics=cli.option_value("--n-harmonics", n_harmonics, ge=1, integer=True),
+        settle_periods=cli.option_value("--settle-periods", settle, gt=0),
+        measure_periods=cli.option_value("--measure-periods", measure, ge=1),
+        tol=cli.option_value("--tol", tol, gt=0),
+        stability=stability,
+    )
+    return {k: v for k, v in options.items() if v is not None}
+
+
+def _finish(system, protocol, result, payload, key, out, resume, json_out) -> None:
+    """The JSON diagram or a summary line on stdout; warnings and incompleteness on
+    stderr (exit 3 when incomplete)."""
+    diagram = result.diagram
+    if json_out:
+        cli.emit_json(payload)
+    else:
+        folds = payload.get("folds")
+        print(
+            f"{system.name}: {protocol} CBC recorded {len(result.points)} points to {out}"
             + (f" (resumed after {result.resumed_from})" if resume else "")
-            + (
-                f"; folds at {', '.join(f'{f[key]:.6g}' for f in payload['folds'])}"
-                if payload.get("folds")
-                else ""
-            )
+            + (f"; folds at {', '.join(f'{f[key]:.6g}' for f in folds)}" if folds else "")
             + (f"; {len(result.failures)} failures" if result.failures else "")
         )
-        if json_out:
-            cli.emit_json(payload)
-        else:
-            print(summary)
-        for w in diagram.warnings:
-            print(f"bifid: warning: {w}", file=sys.stderr)
-        if not diagram.complete:
-            print(f"bifid: error: CBC incomplete: {diagram.message}", file=sys.stderr)
-            raise typer.Exit(cli.EXIT_NUMERICAL)
+    for w in diagram.warnings:
+        print(f"bifid: warning: {w}", file=sys.stderr)
+    if not diagram.complete:
+        print(f"bifid: error: CBC incomplete: {diagram.message}", file=sys.stderr)
+        raise typer.Exit(cli.EXIT_NUMERICAL)
 
 
 _PPCBC = (
@@ -304,8 +315,7 @@ def _ppcbc(
     param = param or system.default_param
     system.index(param)
     vals = _floats(values, "--values")
-    if continuation < 0:
-        raise BifidInputError(f"--continuation must be >= 0, got {continuation}.")
+    continuation = cli.option_value("--continuation", continuation, ge=0, integer=True)
     rng = None
     if continuation:
         if prange is not None:
@@ -319,8 +329,7 @@ def _ppcbc(
         if prange is None:
             raise BifidInputError("ppcbc needs --values V1,V2,... or --range A B.")
         lo, hi = cli.finite_range("--range", *prange)
-        if n_values < 1:
-            raise BifidInputError("--n-values must be >= 1.")
+        n_values = cli.option_value("--n-values", n_values, ge=1, integer=True)
         vals = list(np.linspace(lo, hi, n_values)) if n_values > 1 else [lo]
     span = rng if rng is not None else (min(vals), max(vals))
     dflt = defaults_for(
@@ -345,7 +354,8 @@ def _ppcbc(
         if v is not None:
             opts[k] = v
     if filter_hz is not None:
-        opts["filter_hz"] = cli.option_value("--filter-hz", filter_hz, ge=0) or None
+        cut = cli.option_value("--filter-hz", filter_hz, ge=0)
+        opts["filter_hz"] = cut if cut > 0 else None  # 0: no filter
     total = continuation or 2 * len(vals)
     with _Bars(f"PP-CBC {system.name}", total, quiet) as bars, warnings.catch_warnings():
         warnings.simplefilter("ignore")
@@ -416,8 +426,9 @@ def _forced(
     return result
 
 
-def _truth(system, overrides, protocol, diagram, payload, plot, key) -> None:
-    """Continuation of the model: per-point errors in the JSON, the curve in the plot."""
+def _truth(system, overrides, protocol, diagram, payload):
+    """Continuation of the model: per-point errors in the JSON; the model's diagram (None
+    when continuation finds nothing)."""
     from bifid.cbc._truth import forced_truth, lco_truth
 
     p = system.param_vector(overrides)
@@ -436,42 +447,28 @@ def _truth(system, overrides, protocol, diagram, payload, plot, key) -> None:
             "max_relative_error": max(errors) if errors else None,
             "compared": sum("relative_error" in pt for pt in points),
         }
-        if plot is not None:
-            from bifid.cbc._plot import plot_lco
+        return None if curve is None else curve["diagram"]
+    spec = diagram.settings.get("campaign", {})
+    lo, hi = sorted(spec.get("range", (0.0, 1.0)))
+    got = forced_truth(
+        system, p, protocol, float(spec.get("fixed")), lo, hi, str(diagram.info.get("observed"))
+    )
+    if got is None:
+        return None
+    curve, folds = got
+    payload["truth"] = {"folds": folds}
+    return curve["diagram"]
 
-            plot_lco(
-                plot,
-                points,
-                signals,
-                diagram.param,
-                curve,
-                f"{system.name}: PP-CBC over continuation",
-                units=diagram.units,
-            )
-    else:
-        spec = diagram.settings.get("campaign", {})
-        lo, hi = sorted(spec.get("range", (0.0, 1.0)))
-        got = forced_truth(
-            system, p, protocol, float(spec.get("fixed")), lo, hi, str(diagram.info.get("observed"))
-        )
-        curve = None
-        if got is not None:
-            curve, folds = got
-            payload["truth"] = {"folds": folds}
-        if plot is not None:
-            from bifid.cbc._plot import plot_forced
 
-            plot_forced(
-                plot,
-                points,
-                key,
-                payload.get("folds", []),
-                curve,
-                f"{system.name}: CBC {protocol}",
-                str(diagram.info.get("observed")),
-            )
-    if plot is not None:
-        payload["plot"] = str(plot)
+def _plot(system, protocol, diagram, truth, plot: Path, payload) -> None:
+    """The measured diagram over the model's (when computed), by :mod:`bifid.report`."""
+    from bifid.report import plot_diagram, save_figure
+
+    shown = ([truth] if truth is not None else []) + [diagram]
+    labels = (["continuation of the model"] if truth is not None else []) + ["CBC"]
+    fig = plot_diagram(*shown, labels=labels, title=f"{system.name}: CBC {protocol}")
+    save_figure(fig, plot)
+    payload["plot"] = str(plot)
 
 
 __all__ = ["cbc_cmd"]
