@@ -114,8 +114,9 @@ def locate_hopf(
     lam = brentq(growth, lo, hi, xtol=xtol, rtol=4 * np.finfo(float).eps)
     w, V = np.linalg.eig(jac(lam))
     k = int(np.argmax(np.where(w.imag > 0, w.real, -np.inf)))
-    return HopfStart(lam=float(lam), x=np.asarray(x_eq(lam), float), omega=float(w[k].imag),
-                     q=V[:, k])
+    return HopfStart(
+        lam=float(lam), x=np.asarray(x_eq(lam), float), omega=float(w[k].imag), q=V[:, k]
+    )
 
 
 class _Shooter:
@@ -138,8 +139,7 @@ class _Shooter:
             return np.concatenate([f(x), dW.ravel()])
 
         y0 = np.concatenate([x0, np.hstack([np.eye(n), np.zeros((n, 1))]).ravel()])
-        sol = solve_ivp(rhs, (0.0, T), y0, method=self.o.method, rtol=self.o.rtol,
-                        atol=self.o.atol)
+        sol = solve_ivp(rhs, (0.0, T), y0, method=self.o.method, rtol=self.o.rtol, atol=self.o.atol)
         self.n_integrations += 1
         if not sol.success:
             raise FloatingPointError(sol.message)
@@ -176,8 +176,13 @@ class _Shooter:
             return F, J
 
         try:
-            sol = root(fun, z_guess, jac=True, method="hybr",
-                       options={"xtol": self.o.xtol, "maxfev": self.o.max_nfev})
+            sol = root(
+                fun,
+                z_guess,
+                jac=True,
+                method="hybr",
+                options={"xtol": self.o.xtol, "maxfev": self.o.max_nfev},
+            )
         except FloatingPointError:
             return z_guess, False, 0, None, None
         z = sol.x
@@ -300,9 +305,15 @@ def continue_from_hopf(
         elif nfev >= 2 * o.easy_nfev:
             ds = max(ds / 2.0, o.ds_min)
 
-    return ShootingBranch(z=np.array(zs), multipliers=np.array(ms), stable=np.array(sts),
-                          folds=folds, status=status, message=message,
-                          n_integrations=sh.n_integrations)
+    return ShootingBranch(
+        z=np.array(zs),
+        multipliers=np.array(ms),
+        stable=np.array(sts),
+        folds=folds,
+        status=status,
+        message=message,
+        n_integrations=sh.n_integrations,
+    )
 
 
 def _locate_fold(sh: _Shooter, z_a, t_a, ds, w, x_ref, f_ref, pi, phase_ref):

@@ -83,8 +83,18 @@ def run_cli(args: list[str]) -> tuple[int, dict | None, str, float]:
 
 def continue_args(run: dict, system: str, orbits: bool = True) -> list[str]:
     a, b = run["range"]
-    args = ["continue", system, "--param", run["param"], "--range", repr(a), repr(b),
-            "--json", "--quiet", "--orbits" if orbits else "--no-orbits"]
+    args = [
+        "continue",
+        system,
+        "--param",
+        run["param"],
+        "--range",
+        repr(a),
+        repr(b),
+        "--json",
+        "--quiet",
+        "--orbits" if orbits else "--no-orbits",
+    ]
     for k, v in run["set"].items():
         args += ["--set", f"{k}={v!r}"]
     if run["x0"] is not None:
@@ -123,8 +133,18 @@ def point_rows(demo: str, label: str, kind: str, pairs, exact=None) -> list[dict
         ok = d is not None and abs(d) <= AGREE_UNITS
         if not ok and d is not None and ind is not None:
             ok = abs(got - ind) <= 1e-9 * max(1.0, abs(ind)) and abs(ref - ind) > abs(got - ind)
-        rows.append({"demo": demo, "run": label, "kind": kind, "auto": ref, "bifid": got,
-                     "delta": d, "exact": ind, "ok": ok})
+        rows.append(
+            {
+                "demo": demo,
+                "run": label,
+                "kind": kind,
+                "auto": ref,
+                "bifid": got,
+                "delta": d,
+                "exact": ind,
+                "ok": ok,
+            }
+        )
     return rows
 
 
@@ -149,8 +169,11 @@ def coverage(orbits: list[dict], stop: dict) -> int:
 
 def along(orbits: list[dict], param: float, period: float) -> int:
     """Index of the orbit of a branch nearest ``(param, period)`` (relative distances)."""
-    d = [abs(o["param"] - param) / max(1e-12, abs(param)) + abs((o.get("period") or 0) - period)
-         / max(1e-12, period) for o in orbits]
+    d = [
+        abs(o["param"] - param) / max(1e-12, abs(param))
+        + abs((o.get("period") or 0) - period) / max(1e-12, period)
+        for o in orbits
+    ]
     return int(np.argmin(d))
 
 
@@ -159,9 +182,11 @@ def _quadratic(xs: list[float], ys: list[float], x: float) -> float:
     if len(xs) == 2:
         return ys[0] + (x - xs[0]) * (ys[1] - ys[0]) / (xs[1] - xs[0])
     (x0, x1, x2), (y0, y1, y2) = xs, ys
-    return (y0 * (x - x1) * (x - x2) / ((x0 - x1) * (x0 - x2))
-            + y1 * (x - x0) * (x - x2) / ((x1 - x0) * (x1 - x2))
-            + y2 * (x - x0) * (x - x1) / ((x2 - x0) * (x2 - x1)))
+    return (
+        y0 * (x - x1) * (x - x2) / ((x0 - x1) * (x0 - x2))
+        + y1 * (x - x0) * (x - x2) / ((x1 - x0) * (x1 - x2))
+        + y2 * (x - x0) * (x - x1) / ((x2 - x0) * (x2 - x1))
+    )
 
 
 def _along(xs: list[float], ys: list[float], x: float) -> list[float]:
@@ -219,8 +244,9 @@ def compare_orbits(demo: str, run: dict, data: dict, hopf_branch: dict[float, in
         for s in data.get("secondary", []):
             if s.get("branch") != b or along(orbits, s["param"], 0.0) >= n:
                 continue
-            if s["kind"] == "branch_point" and any(abs(s["param"] - v) < 1e-3
-                                                   for v in orb["branch_points"]):
+            if s["kind"] == "branch_point" and any(
+                abs(s["param"] - v) < 1e-3 for v in orb["branch_points"]
+            ):
                 continue
             if s["kind"] in orb["detect"]:
                 extra.append((label, s["kind"], s["param"]))
@@ -229,22 +255,49 @@ def compare_orbits(demo: str, run: dict, data: dict, hopf_branch: dict[float, in
         for p, t in orb["points"]:
             d = curve_delta(inside, p, t)
             beyond = d is None and end.get("reason") == "homoclinic" and t > top
-            rows.append({"demo": demo, "run": label, "kind": "orbit period", "auto": t,
-                         "bifid": None, "delta": d, "exact": None, "at": p,
-                         "ok": None if beyond else d is not None and d <= AGREE_UNITS})
+            rows.append(
+                {
+                    "demo": demo,
+                    "run": label,
+                    "kind": "orbit period",
+                    "auto": t,
+                    "bifid": None,
+                    "delta": d,
+                    "exact": None,
+                    "at": p,
+                    "ok": None if beyond else d is not None and d <= AGREE_UNITS,
+                }
+            )
         if orb["homoclinic"] is not None:
-            notes.append(f"{label}: AUTO stops at period {orb['homoclinic'][1]:g} at "
-                         f"{orb['homoclinic'][0]:g}; bifid ends '{end.get('reason')}' at "
-                         f"{end.get('param')!s} (largest period "
-                         f"{max((o.get('period') or 0) for o in orbits):.4g})")
-        bps = [c for c in data.get("candidates", []) if c.get("branch") == b
-               and c["kind"] == "branch_point"]
+            notes.append(
+                f"{label}: AUTO stops at period {orb['homoclinic'][1]:g} at "
+                f"{orb['homoclinic'][0]:g}; bifid ends '{end.get('reason')}' at "
+                f"{end.get('param')!s} (largest period "
+                f"{max((o.get('period') or 0) for o in orbits):.4g})"
+            )
+        bps = [
+            c
+            for c in data.get("candidates", [])
+            if c.get("branch") == b and c["kind"] == "branch_point"
+        ]
         for v in orb["branch_points"]:
             hit = any(min(c["bracket"]) - 1e-3 <= v <= max(c["bracket"]) + 1e-3 for c in bps)
-            hit = hit or any(s.get("branch") == b and s["kind"] == "branch_point"
-                             and abs(s["param"] - v) < 1e-3 for s in data.get("secondary", []))
-            rows.append({"demo": demo, "run": label, "kind": "cycle BP", "auto": v,
-                         "bifid": v if hit else None, "delta": None, "exact": None, "ok": hit})
+            hit = hit or any(
+                s.get("branch") == b and s["kind"] == "branch_point" and abs(s["param"] - v) < 1e-3
+                for s in data.get("secondary", [])
+            )
+            rows.append(
+                {
+                    "demo": demo,
+                    "run": label,
+                    "kind": "cycle BP",
+                    "auto": v,
+                    "bifid": v if hit else None,
+                    "delta": None,
+                    "exact": None,
+                    "ok": hit,
+                }
+            )
     return rows, extra, notes
 
 
@@ -252,18 +305,33 @@ def compare_equilibria(demo: str, run: dict, data: dict, exact) -> tuple[list, l
     rows, extra = [], []
     hopf = [h["param"] for h in data["hopf"] if h.get("branch") == 0]
     folds = [f["param"] for f in data["folds"] if f.get("branch") == 0]
-    for kind, key, ref, found in (("HB", "hopf", run["hopf"], hopf),
-                                  ("LP", "fold", run["folds"], folds)):
+    for kind, key, ref, found in (
+        ("HB", "hopf", run["hopf"], hopf),
+        ("LP", "fold", run["folds"], folds),
+    ):
         pairs, left = match(list(ref), found)
         rows += point_rows(demo, run["label"], kind, pairs, exact.get(kind))
         if key in run["detect"]:
             extra += [(run["label"], kind, v) for v in left]
-    cands = [c for c in data.get("candidates", [])
-             if c.get("branch") == 0 and c["kind"] == "branch_point"]
+    cands = [
+        c
+        for c in data.get("candidates", [])
+        if c.get("branch") == 0 and c["kind"] == "branch_point"
+    ]
     for v in run["branch_points"]:
         hit = any(min(c["bracket"]) - 1e-6 <= v <= max(c["bracket"]) + 1e-6 for c in cands)
-        rows.append({"demo": demo, "run": run["label"], "kind": "BP (candidate)", "auto": v,
-                     "bifid": v if hit else None, "delta": None, "exact": None, "ok": hit})
+        rows.append(
+            {
+                "demo": demo,
+                "run": run["label"],
+                "kind": "BP (candidate)",
+                "auto": v,
+                "bifid": v if hit else None,
+                "delta": None,
+                "exact": None,
+                "ok": hit,
+            }
+        )
     return rows, extra
 
 
@@ -287,8 +355,9 @@ def independent(demo: str, run: dict) -> dict:
 
         system = get_system(demo)
         x0 = None if run["x0"] is None else np.array(run["x0"], dtype=float)
-        scan = equilibrium_scan(system, run["param"], *run["range"],
-                                system.param_vector(run["set"]), x0, n_grid=4001)
+        scan = equilibrium_scan(
+            system, run["param"], *run["range"], system.param_vector(run["set"]), x0, n_grid=4001
+        )
         return {"HB": _nearest([h for h, _ in scan.hopf])}
     B, beta = run["set"]["B"], 3.0
 
@@ -300,8 +369,10 @@ def independent(demo: str, run: dict) -> dict:
     lp = np.roots([B / (1 + beta), -B / (1 + beta), 1.0])
     lp = lp[np.isreal(lp)].real
 
-    return {"HB": _nearest([da(u) for u in hb if 0 < u < 1]),
-            "LP": _nearest([da(u) for u in lp if 0 < u < 1])}
+    return {
+        "HB": _nearest([da(u) for u in hb if 0 < u < 1]),
+        "LP": _nearest([da(u) for u in lp if 0 < u < 1]),
+    }
 
 
 def run_demo(name: str, orbits: bool = True) -> dict:
@@ -314,12 +385,16 @@ def run_demo(name: str, orbits: bool = True) -> dict:
         timing.append(dt)
         log(f"{name} {run['label']}: exit {code} in {dt:.1f} s")
         if data is None or "hopf" not in data:  # no diagram (an error, or interrupted)
-            notes.append(f"{run['label']}: no diagram (exit {code}): "
-                         f"{(data or {}).get('message') or err.strip()[-300:]}")
+            notes.append(
+                f"{run['label']}: no diagram (exit {code}): "
+                f"{(data or {}).get('message') or err.strip()[-300:]}"
+            )
             continue
         if not data.get("complete", False):
-            notes.append(f"{run['label']}: incomplete ({data.get('status')}): "
-                         f"{data.get('message', '')[:200]}")
+            notes.append(
+                f"{run['label']}: incomplete ({data.get('status')}): "
+                f"{data.get('message', '')[:200]}"
+            )
         r, e = compare_equilibria(name, run, data, independent(name, run))
         rows += r
         extra += e
@@ -330,11 +405,22 @@ def run_demo(name: str, orbits: bool = True) -> dict:
         rows, extra, notes = rows + r, extra + e, notes + n
         n_cand = sum(1 for c in data.get("candidates", []) if c["kind"] != "branch_point")
         if n_cand:
-            notes.append(f"{run['label']}: {n_cand} non-branch-point candidate(s): "
-                         + "; ".join(f"{c['kind']} {c['bracket']}: {c['reason'][:90]}"
-                                     for c in data["candidates"] if c["kind"] != "branch_point"))
-    return {"name": name, "rows": rows, "extra": extra, "notes": notes,
-            "time": sum(timing), "runs": len(module.AUTO_RUNS)}
+            notes.append(
+                f"{run['label']}: {n_cand} non-branch-point candidate(s): "
+                + "; ".join(
+                    f"{c['kind']} {c['bracket']}: {c['reason'][:90]}"
+                    for c in data["candidates"]
+                    if c["kind"] != "branch_point"
+                )
+            )
+    return {
+        "name": name,
+        "rows": rows,
+        "extra": extra,
+        "notes": notes,
+        "time": sum(timing),
+        "runs": len(module.AUTO_RUNS),
+    }
 
 
 # ----------------------------------------------------------------------------- report
@@ -367,18 +453,26 @@ def render(results: list[dict], orbits: bool = True) -> str:
         n = len(r["rows"])
         ok = sum(1 for x in r["rows"] if x["ok"])
         beyond = sum(1 for x in r["rows"] if x["ok"] is None)
-        lines.append(f"| {r['name']} | {r['runs']} | {n} | {ok} | {n - ok - beyond} | {beyond} "
-                     f"| {len(r['extra'])} | {r['time']:.0f} |")
-    lines += ["", "| demo | run | kind | AUTO | bifid | Δ | independent |",
-              "|---|---|---|---|---|---|---|"]
+        lines.append(
+            f"| {r['name']} | {r['runs']} | {n} | {ok} | {n - ok - beyond} | {beyond} "
+            f"| {len(r['extra'])} | {r['time']:.0f} |"
+        )
+    lines += [
+        "",
+        "| demo | run | kind | AUTO | bifid | Δ | independent |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for r in results:
         for x in r["rows"]:
             at = f" at {x['at']:g}" if "at" in x else ""
             delta = "—" if x["delta"] is None else f"{x['delta']:+.2f}"
-            mark = ("" if x["ok"] else " (beyond bifid's homoclinic end)" if x["ok"] is None
-                    else " ✗")
-            lines.append(f"| {x['demo']} | {x['run']} | {x['kind']}{at} | {fmt(x['auto'])} | "
-                         f"{fmt(x['bifid'])} | {delta}{mark} | {fmt(x['exact'])} |")
+            mark = (
+                "" if x["ok"] else " (beyond bifid's homoclinic end)" if x["ok"] is None else " ✗"
+            )
+            lines.append(
+                f"| {x['demo']} | {x['run']} | {x['kind']}{at} | {fmt(x['auto'])} | "
+                f"{fmt(x['bifid'])} | {delta}{mark} | {fmt(x['exact'])} |"
+            )
     extra = [(r["name"], *e) for r in results for e in r["extra"]]
     lines += ["", f"Extra located points (not in AUTO's output): {len(extra)}"]
     lines += [f"- {d} {lab}: {k} at {v:.9g}" for d, lab, k, v in extra]
@@ -403,7 +497,8 @@ def main(argv: list[str] | None = None) -> int:
         write_section("auto", md)
         log("wrote the 'auto' section of BENCHMARKS.md")
     bad = sum(1 for r in results for x in r["rows"] if x["ok"] is False) + sum(
-        len(r["extra"]) for r in results)
+        len(r["extra"]) for r in results
+    )
     return 0 if bad == 0 else 1
 
 

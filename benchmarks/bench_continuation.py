@@ -49,8 +49,9 @@ from bifid.continuation import (
 from bifid.systems import flutter_matrices, get_system
 
 P_MIN, P_MAX = 14.0, 18.3
-ORBIT_OPTIONS = ContinuationOptions(ds=1e-3, ds_min=1e-9, ds_max=0.25, p_min=P_MIN, p_max=P_MAX,
-                                    max_steps=600)
+ORBIT_OPTIONS = ContinuationOptions(
+    ds=1e-3, ds_min=1e-9, ds_max=0.25, p_min=P_MIN, p_max=P_MAX, max_steps=600
+)
 REF_MESH = 128
 # bifid meshes timed. Fold error against M = 128 (this model): M=20 3e-8, M=24 7e-11,
 # M=32 4e-15 (round-off); 48 is a comfortable everyday mesh (no ResolutionWarning).
@@ -65,9 +66,16 @@ COMPARABLE = 3.0
 def shooting_options(rtol: float) -> _shooting.ShootingOptions:
     """Same step control as ``ORBIT_OPTIONS``; DOP853 rtol, root xtol = rtol, atol = rtol/100."""
     return _shooting.ShootingOptions(
-        ds=ORBIT_OPTIONS.ds, ds_min=ORBIT_OPTIONS.ds_min, ds_max=ORBIT_OPTIONS.ds_max,
-        p_min=P_MIN, p_max=P_MAX, max_steps=ORBIT_OPTIONS.max_steps, rtol=rtol,
-        atol=rtol * 1e-2, xtol=rtol, ftol=max(100 * rtol, 1e-10),
+        ds=ORBIT_OPTIONS.ds,
+        ds_min=ORBIT_OPTIONS.ds_min,
+        ds_max=ORBIT_OPTIONS.ds_max,
+        p_min=P_MIN,
+        p_max=P_MAX,
+        max_steps=ORBIT_OPTIONS.max_steps,
+        rtol=rtol,
+        atol=rtol * 1e-2,
+        xtol=rtol,
+        ftol=max(100 * rtol, 1e-10),
     )
 
 
@@ -118,12 +126,26 @@ def reference_fold(system, p, br, M_from: int, M_ref: int = REF_MESH):
     n = system.n_states
     V = br.solutions[i, : M_from * n].reshape(M_from, n)
     U_i = float(br.params[i])
-    opts = ContinuationOptions(ds=0.01, ds_min=1e-9, ds_max=0.05, p_min=U_i - 1.0,
-                              p_max=U_i + 0.1, direction=-1, max_steps=200)
+    opts = ContinuationOptions(
+        ds=0.01,
+        ds_min=1e-9,
+        ds_max=0.05,
+        p_min=U_i - 1.0,
+        p_max=U_i + 0.1,
+        direction=-1,
+        max_steps=200,
+    )
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
-        ref = periodic_orbits(system, "U", V, float(br.data["period"][i]),
-                              p=p.at[system.index("U")].set(U_i), n_mesh=M_ref, options=opts)
+        ref = periodic_orbits(
+            system,
+            "U",
+            V,
+            float(br.data["period"][i]),
+            p=p.at[system.index("U")].set(U_i),
+            n_mesh=M_ref,
+            options=opts,
+        )
     return fold_of(ref)[0], len(ref)
 
 
@@ -245,12 +267,21 @@ def jaxcont_attempt(system, p, seed_branch, M_seed: int, ref_fold: float, refine
 
     ntst, ncol = JAXCONT_MESH
     mesh = Collocation(ntst=ntst, ncol=ncol)
-    settings = jc.ContinuationPar(ds=0.01, ds_min=1e-8, ds_max=0.5, max_steps=JAXCONT_STEPS,
-                                  newton_tol=1e-9, newton_max_iter=10)
-    out["settings"] = (f"ntst={ntst}, ncol={ncol}, ds=0.01, ds_max=0.5, "
-                       f"max_steps={JAXCONT_STEPS}, newton_tol=1e-9, float64")
-    prob, out["t_build"] = timed(periodic_orbit_problem, f, jnp.asarray(traj), jnp.asarray(tt),
-                                 T, U0, mesh)
+    settings = jc.ContinuationPar(
+        ds=0.01,
+        ds_min=1e-8,
+        ds_max=0.5,
+        max_steps=JAXCONT_STEPS,
+        newton_tol=1e-9,
+        newton_max_iter=10,
+    )
+    out["settings"] = (
+        f"ntst={ntst}, ncol={ncol}, ds=0.01, ds_max=0.5, "
+        f"max_steps={JAXCONT_STEPS}, newton_tol=1e-9, float64"
+    )
+    prob, out["t_build"] = timed(
+        periodic_orbit_problem, f, jnp.asarray(traj), jnp.asarray(tt), T, U0, mesh
+    )
     # jc.continuation() builds a new ``rhs2`` lambda on every call and passes it as a
     # *static* argument of the jitted engine, so every call recompiles; time the engine
     # it wraps with one fixed rhs (compile once, then warm), then the same Floquet
@@ -264,11 +295,19 @@ def jaxcont_attempt(system, p, seed_branch, M_seed: int, ref_fold: float, refine
 
     def engine():
         r = pseudo_arclength_scan(
-            rhs2, prob.u0, jnp.asarray(U0, dt), jnp.asarray(P_MIN, dt),
-            jnp.asarray(settings.ds, dt), jnp.asarray(settings.ds_min, dt),
-            jnp.asarray(settings.ds_max, dt), jnp.asarray(settings.newton_tol, dt),
-            settings.max_steps, jnp.asarray(settings.newton_max_iter), Dense(),
-            jnp.asarray(True))
+            rhs2,
+            prob.u0,
+            jnp.asarray(U0, dt),
+            jnp.asarray(P_MIN, dt),
+            jnp.asarray(settings.ds, dt),
+            jnp.asarray(settings.ds_min, dt),
+            jnp.asarray(settings.ds_max, dt),
+            jnp.asarray(settings.newton_tol, dt),
+            settings.max_steps,
+            jnp.asarray(settings.newton_max_iter),
+            Dense(),
+            jnp.asarray(True),
+        )
         return jax.block_until_ready(r)
 
     scan, out["t_first"] = timed(engine)
@@ -294,15 +333,23 @@ def jaxcont_attempt(system, p, seed_branch, M_seed: int, ref_fold: float, refine
     out["reached_p_max"] = bool(above.size)
     out["n_task_points"] = int(i + above[0] + 1) if above.size else len(P)
     if 0 < i < len(P) - 1:  # parabola through the three points around the turn
-        s = np.concatenate([[0.0], np.cumsum(np.linalg.norm(np.diff(
-            np.asarray(states)[i - 1 : i + 2], axis=0), axis=1))])
+        s = np.concatenate(
+            [
+                [0.0],
+                np.cumsum(
+                    np.linalg.norm(np.diff(np.asarray(states)[i - 1 : i + 2], axis=0), axis=1)
+                ),
+            ]
+        )
         c = np.polyfit(s, P[i - 1 : i + 2], 2)
         out["fold_parabola"] = float(np.polyval(c, -c[1] / (2 * c[0])))
     if refine_fold:  # through the public API: compile + run + Floquet + Fold() refinement
-        res, out["t_fold"] = timed(jc.continuation, prob, p_span=(U0, P_MIN), settings=settings,
-                                   events=[jc.Fold()])
-        out["folds"] = [(float(e.p), bool(e.info.get("converged")))
-                        for e in res.events if e.kind == "fold"]
+        res, out["t_fold"] = timed(
+            jc.continuation, prob, p_span=(U0, P_MIN), settings=settings, events=[jc.Fold()]
+        )
+        out["folds"] = [
+            (float(e.p), bool(e.info.get("converged"))) for e in res.events if e.kind == "fold"
+        ]
     return out
 
 
@@ -310,11 +357,15 @@ def jaxcont_attempt(system, p, seed_branch, M_seed: int, ref_fold: float, refine
 def main(argv: list[str] | None = None) -> int:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--repeats", type=int, default=3, help="warm runs per method (>= 3)")
-    ap.add_argument("--quick", action="store_true",
-                    help="skip the tight baseline (rtol=1e-12) and jaxcont")
+    ap.add_argument(
+        "--quick", action="store_true", help="skip the tight baseline (rtol=1e-12) and jaxcont"
+    )
     ap.add_argument("--no-jaxcont", action="store_true", help="skip the jaxcont attempt")
-    ap.add_argument("--jaxcont-fold", action="store_true",
-                    help="also run jaxcont's Fold() refinement (slow: minutes)")
+    ap.add_argument(
+        "--jaxcont-fold",
+        action="store_true",
+        help="also run jaxcont's Fold() refinement (slow: minutes)",
+    )
     ap.add_argument("--no-write", action="store_true", help="print, do not write BENCHMARKS.md")
     a = ap.parse_args(argv)
     repeats = max(3, a.repeats)
@@ -340,11 +391,19 @@ def main(argv: list[str] | None = None) -> int:
             times.append(dt)
             log(f"bifid: M={M} warm run {r + 1}: {dt:.2f} s, {len(br)} orbits")
         branches[M] = br
-        rows[M] = dict(first=t_first, warm=statistics.median(times), times=times, n=len(br),
-                       n_stable=int(np.sum(br.stable)), fold=fold_of(br)[0],
-                       split=split_ok(br.params, br.stable),
-                       status=br.status, warnings=warns,
-                       p_end=float(br.params[-1]), p_lo=float(np.min(br.params)))
+        rows[M] = dict(
+            first=t_first,
+            warm=statistics.median(times),
+            times=times,
+            n=len(br),
+            n_stable=int(np.sum(br.stable)),
+            fold=fold_of(br)[0],
+            split=split_ok(br.params, br.stable),
+            status=br.status,
+            warnings=warns,
+            p_end=float(br.params[-1]),
+            p_lo=float(np.min(br.params)),
+        )
 
     log(f"bifid: reference fold at M={REF_MESH}")
     M_top = MESHES[-1]
@@ -365,31 +424,55 @@ def main(argv: list[str] | None = None) -> int:
         for r in range(runs):
             (sh_hopf, sh), dt = timed(shooting_task, make, rtol)
             times.append(dt)
-            log(f"shooting rtol={rtol:g}: run {r + 1}: {dt:.2f} s ({len(sh)} orbits, "
-                f"{sh.n_integrations} integrations)")
+            log(
+                f"shooting rtol={rtol:g}: run {r + 1}: {dt:.2f} s ({len(sh)} orbits, "
+                f"{sh.n_integrations} integrations)"
+            )
         if len(sh.folds) != 1:
             raise RuntimeError(f"shooting: expected one cycle fold, found {len(sh.folds)}")
-        base[rtol] = dict(warm=statistics.median(times), times=times, n=len(sh),
-                          n_stable=int(np.sum(sh.stable)), fold=sh.folds[0][0],
-                          split=split_ok(sh.params, sh.stable),
-                          err=sh.folds[0][0] - ref_fold, status=sh.status,
-                          n_int=sh.n_integrations, hopf=sh_hopf.lam,
-                          p_end=float(sh.params[-1]), p_lo=float(np.min(sh.params)))
+        base[rtol] = dict(
+            warm=statistics.median(times),
+            times=times,
+            n=len(sh),
+            n_stable=int(np.sum(sh.stable)),
+            fold=sh.folds[0][0],
+            split=split_ok(sh.params, sh.stable),
+            err=sh.folds[0][0] - ref_fold,
+            status=sh.status,
+            n_int=sh.n_integrations,
+            hopf=sh_hopf.lam,
+            p_end=float(sh.params[-1]),
+            p_lo=float(np.min(sh.params)),
+        )
 
     jx: dict | None = None
     if not (a.no_jaxcont or a.quick):
         log("jaxcont: periodic-orbit continuation attempt")
         try:
-            jx = jaxcont_attempt(system, p, branches[MESHES[0]], MESHES[0], ref_fold,
-                                 a.jaxcont_fold)
+            jx = jaxcont_attempt(
+                system, p, branches[MESHES[0]], MESHES[0], ref_fold, a.jaxcont_fold
+            )
         except Exception as exc:  # record precisely what failed
             jx = {"error": f"{type(exc).__name__}: {exc}".splitlines()[0][:300]}
             traceback.print_exc()
     load1 = os.getloadavg()
     total = time.perf_counter() - t_start
 
-    md = render(rows, base, ref_fold, n_ref, t_ref, h, t_hopf_first, hopf_warm, field_err, jx,
-                load0, load1, total)
+    md = render(
+        rows,
+        base,
+        ref_fold,
+        n_ref,
+        t_ref,
+        h,
+        t_hopf_first,
+        hopf_warm,
+        field_err,
+        jx,
+        load0,
+        load1,
+        total,
+    )
     print(md)
     if not a.no_write:
         write_section("continuation", md)
@@ -416,8 +499,21 @@ def pairs(rows: dict, base: dict) -> list[tuple[float, int]]:
     return out
 
 
-def render(rows, base, ref_fold, n_ref, t_ref, h, t_hopf_first, hopf_warm, field_err, jx,
-           load0, load1, total) -> str:
+def render(
+    rows,
+    base,
+    ref_fold,
+    n_ref,
+    t_ref,
+    h,
+    t_hopf_first,
+    hopf_warm,
+    field_err,
+    jx,
+    load0,
+    load1,
+    total,
+) -> str:
     L = ["## Continuation: flutter orbit branch through the cycle fold", ""]
     L.append(
         "**Task.** From the subcritical Hopf point of `flutter` (U_H = "
@@ -449,8 +545,10 @@ def render(rows, base, ref_fold, n_ref, t_ref, h, t_hopf_first, hopf_warm, field
         "1e-10 matches bifid at M = 24, rtol 1e-12 is the tightest practical one "
         "(DOP853 near round-off) and is still less accurate than bifid at M ≥ 32.\n"
     )
-    L.append("| method | compile [s] | warm median [s] (runs) | orbits (stable) | "
-             "stability split right | fold U [m/s] | fold error |")
+    L.append(
+        "| method | compile [s] | warm median [s] (runs) | orbits (stable) | "
+        "stability split right | fold U [m/s] | fold error |"
+    )
     L.append("|---|---|---|---|---|---|---|")
     for M, r in rows.items():
         L.append(
@@ -466,17 +564,24 @@ def render(rows, base, ref_fold, n_ref, t_ref, h, t_hopf_first, hopf_warm, field
             f"{b['err']:+.1e} |"
         )
     L.append("")
-    L.append("(*Stability split right*: every orbit before the turn is unstable and every one "
-             "after it stable, by the Floquet multipliers.)\n")
-    L.append("**Speed-up at equal accuracy** (baseline warm median / bifid warm median; "
-             f"bifid's mesh = the cheapest whose fold error is ≤ {COMPARABLE:g}× the "
-             "baseline's):\n")
+    L.append(
+        "(*Stability split right*: every orbit before the turn is unstable and every one "
+        "after it stable, by the Floquet multipliers.)\n"
+    )
+    L.append(
+        "**Speed-up at equal accuracy** (baseline warm median / bifid warm median; "
+        f"bifid's mesh = the cheapest whose fold error is ≤ {COMPARABLE:g}× the "
+        "baseline's):\n"
+    )
     for rtol, M in pairs(rows, base):
         b, r = base[rtol], rows[M]
-        L.append(f"- shooting rtol = {rtol:g} (fold error {abs(b['err']):.0e}) vs bifid M = {M} "
-                 f"({abs(r['err']):.0e}): **{b['warm'] / r['warm']:.1f}×** "
-                 f"({b['warm']:.2f} s / {r['warm']:.2f} s"
-                 + (", baseline timed once" if len(b["times"]) == 1 else "") + ")")
+        L.append(
+            f"- shooting rtol = {rtol:g} (fold error {abs(b['err']):.0e}) vs bifid M = {M} "
+            f"({abs(r['err']):.0e}): **{b['warm'] / r['warm']:.1f}×** "
+            f"({b['warm']:.2f} s / {r['warm']:.2f} s"
+            + (", baseline timed once" if len(b["times"]) == 1 else "")
+            + ")"
+        )
     for rtol, b in base.items():
         others = ", ".join(f"M = {M}: {b['warm'] / r['warm']:.1f}×" for M, r in rows.items())
         L.append(f"- all ratios against shooting rtol = {rtol:g}: {others}")
@@ -486,13 +591,17 @@ def render(rows, base, ref_fold, n_ref, t_ref, h, t_hopf_first, hopf_warm, field
         f"({t_hopf_first - hopf_warm:.1f} s; `locate_hopf` warm {hopf_warm * 1e3:.0f} ms, "
         "included in the warm times), then per mesh size the collocation residual/Jacobian "
         "and the vmapped monodromy integrator. Ends: "
-        + "; ".join(f"bifid M={M} {r['status']} (U {r['p_lo']:.4f} … {r['p_end']:.4f})"
-                    + (f" with {', '.join(r['warnings'])}" if r["warnings"] else "")
-                    for M, r in rows.items())
+        + "; ".join(
+            f"bifid M={M} {r['status']} (U {r['p_lo']:.4f} … {r['p_end']:.4f})"
+            + (f" with {', '.join(r['warnings'])}" if r["warnings"] else "")
+            for M, r in rows.items()
+        )
         + "; "
-        + "; ".join(f"shooting rtol={rtol:g} {b['status']} (U {b['p_lo']:.4f} … "
-                    f"{b['p_end']:.4f}, {b['n_int']} flow integrations of 48 ODEs)"
-                    for rtol, b in base.items())
+        + "; ".join(
+            f"shooting rtol={rtol:g} {b['status']} (U {b['p_lo']:.4f} … "
+            f"{b['p_end']:.4f}, {b['n_int']} flow integrations of 48 ODEs)"
+            for rtol, b in base.items()
+        )
         + ".\n"
     )
     if any(r["warnings"] for r in rows.values()):
@@ -519,7 +628,7 @@ def render_jaxcont(jx, ref_fold, rows) -> str:
     limits = (
         "What it cannot do (from its source: `jaxcont/problems/periodic.py`, "
         "`core/scan_continuation.py`, `api.py`): it cannot start a periodic branch at a "
-        "Hopf point — `periodic_orbit_problem` takes a trajectory guess \"from the "
+        'Hopf point — `periodic_orbit_problem` takes a trajectory guess "from the '
         "caller's own simulation\" and the orbits next to this subcritical Hopf point are "
         "unstable, so no simulation gives them (we seeded it with bifid's first orbit); "
         "the integral phase condition keeps the *initial* orbit as reference for the "
@@ -555,13 +664,21 @@ def render_jaxcont(jx, ref_fold, rows) -> str:
         "the jit cache misses every time."
     )
     if "fold_parabola" in jx:
-        res += (f" Fold estimate from a parabola through its three points around the turn: "
-                f"{jx['fold_parabola']:.6f} (error {jx['fold_parabola'] - ref_fold:+.1e}).")
+        res += (
+            f" Fold estimate from a parabola through its three points around the turn: "
+            f"{jx['fold_parabola']:.6f} (error {jx['fold_parabola'] - ref_fold:+.1e})."
+        )
     if "folds" in jx:
-        res += " `Fold()` refinement: " + (", ".join(
-            f"{u:.10f} (converged={c}, error {u - ref_fold:+.1e})" for u, c in jx["folds"])
-            or "none") + (f"; the whole `continuation(..., events=[Fold()])` call took "
-                          f"{jx['t_fold']:.0f} s.")
+        res += (
+            " `Fold()` refinement: "
+            + (
+                ", ".join(
+                    f"{u:.10f} (converged={c}, error {u - ref_fold:+.1e})" for u, c in jx["folds"]
+                )
+                or "none"
+            )
+            + (f"; the whole `continuation(..., events=[Fold()])` call took {jx['t_fold']:.0f} s.")
+        )
     else:
         res += " Its `Fold()` refinement is not run by default (minutes; `--jaxcont-fold`)."
     return head + limits + "\n\n" + res + "\n"

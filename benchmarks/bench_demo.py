@@ -25,9 +25,11 @@ BIFID = Path(sys.executable).with_name("bifid")
 
 def run_demo(which: str, out: Path) -> tuple[float, dict]:
     t0 = time.perf_counter()
-    r = subprocess.run([str(BIFID), "demo", which, "--out", str(out), "--resume", "--json",
-                        "--quiet"],
-                       capture_output=True, text=True)
+    r = subprocess.run(
+        [str(BIFID), "demo", which, "--out", str(out), "--resume", "--json", "--quiet"],
+        capture_output=True,
+        text=True,
+    )
     wall = time.perf_counter() - t0
     if r.returncode != 0:
         raise SystemExit(f"bifid demo {which} failed ({r.returncode}): {r.stderr[-2000:]}")
@@ -40,16 +42,20 @@ def main() -> int:
     args = ap.parse_args()
     from bifid.report.render import check_report, find_chromium
 
-    lines = ["## demo — `bifid demo flutter|forced` end to end", "",
-             "Fresh output directory, each demo in its own process (JIT compilation included; "
-             "the persistent compilation cache may be warm), then a second run in the same "
-             "directory (every stage reused from the cache). Limit: 10 min on 2 cores.", "",
-             "| demo | first run [s] | truth | campaign | model | mechanistic | "
-             "compare + report | second run [s] | ratio | checks passed | "
-             "Chromium: figures shown |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    lines = [
+        "## demo — `bifid demo flutter|forced` end to end",
+        "",
+        "Fresh output directory, each demo in its own process (JIT compilation included; "
+        "the persistent compilation cache may be warm), then a second run in the same "
+        "directory (every stage reused from the cache). Limit: 10 min on 2 cores.",
+        "",
+        "| demo | first run [s] | truth | campaign | model | mechanistic | "
+        "compare + report | second run [s] | ratio | checks passed | "
+        "Chromium: figures shown |",
+        "|---|---|---|---|---|---|---|---|---|---|---|",
+    ]
     details = []
-    for which in ([args.only] if args.only else ["flutter", "forced"]):
+    for which in [args.only] if args.only else ["flutter", "forced"]:
         with tempfile.TemporaryDirectory(prefix=f"bifid-demo-{which}-") as tmp:
             out = Path(tmp)
             wall1, s1 = run_demo(which, out)
@@ -65,9 +71,14 @@ def main() -> int:
                 f"{t['model']:.0f} | {t.get('mechanistic', 0):.0f} | {t['compare']:.0f} | "
                 f"{wall2:.1f} | "
                 f"{wall1 / wall2:.0f}× | {sum(c['passed'] for c in chk.values())}/{len(chk)} | "
-                f"{shown} |")
-            details.append(f"**{which}** errors: " + ", ".join(
-                f"{k} = {v['value']:.4g} (limit {v['limit']:g})" for k, v in chk.items()))
+                f"{shown} |"
+            )
+            details.append(
+                f"**{which}** errors: "
+                + ", ".join(
+                    f"{k} = {v['value']:.4g} (limit {v['limit']:g})" for k, v in chk.items()
+                )
+            )
             print(lines[-1], flush=True)
     write_section("demo", "\n".join([*lines, "", *details]))
     return 0

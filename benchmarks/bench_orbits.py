@@ -77,21 +77,29 @@ def vdp_period(mu: float) -> float:
 
 def adaptation(repeats: int) -> list[str]:
     s = get_system("vanderpol")
-    rows = [f"| run | end | orbits | meshes used | period error at μ = {MU_END:g} | "
-            "compile [s] | wall [s] | CPU [s] |", "|---|---|---|---|---|---|---|---|"]
+    rows = [
+        f"| run | end | orbits | meshes used | period error at μ = {MU_END:g} | "
+        "compile [s] | wall [s] | CPU [s] |",
+        "|---|---|---|---|---|---|---|---|",
+    ]
     T_ref = vdp_period(MU_END)
     results = {}
-    for name, kw in (("adaptive 64 → 512", {"n_mesh": 64, "max_mesh": 512}),
-                     ("fixed 512", {"n_mesh": 512, "max_mesh": 512})):
+    for name, kw in (
+        ("adaptive 64 → 512", {"n_mesh": 64, "max_mesh": 512}),
+        ("fixed 512", {"n_mesh": 512, "max_mesh": 512}),
+    ):
         log(f"vanderpol {name}")
         (_, (br,)), comp, wall, cpu = timed(
-            lambda kw=kw: continue_from_hopf(s, "mu", -0.5, MU_END, **kw), repeats)
+            lambda kw=kw: continue_from_hopf(s, "mu", -0.5, MU_END, **kw), repeats
+        )
         used, counts = np.unique(br.data["n_mesh"], return_counts=True)
         meshes = ", ".join(f"{m}×{c}" for m, c in zip(used, counts, strict=True))
         err = abs(br.data["period"][-1] - T_ref) / T_ref
         results[name] = wall
-        rows.append(f"| {name} | {br.status} at {br.params[-1]:g} | {len(br)} | {meshes} | "
-                    f"{err:.1e} | {comp:.1f} | {wall:.1f} | {cpu:.1f} |")
+        rows.append(
+            f"| {name} | {br.status} at {br.params[-1]:g} | {len(br)} | {meshes} | "
+            f"{err:.1e} | {comp:.1f} | {wall:.1f} | {cpu:.1f} |"
+        )
     ratio = results["adaptive 64 → 512"] / results["fixed 512"]
     rows.append("")
     rows.append(f"Adaptive / fixed fine mesh (wall, median): **{ratio:.2f}**.")
@@ -105,17 +113,20 @@ def resonance(repeats: int) -> list[str]:
     br, comp, wall, cpu = timed(lambda: frc(s, 0.1, (0.25, 0.45), p=p), repeats)
     peaks = sorted(br.special("peak"), key=lambda sp: -sp.data["amplitude"])
     top = peaks[0]
-    return [f"`frc duffing --forcing 0.1 --omega-range 0.25 0.45 --set zeta=0.002 --set "
-            f"gamma=1`: {len(br)} points, peak {top.data['amplitude']:.6f} at Ω = "
-            f"{top.param:.6f} (expected 0.1830 at 0.3373), {len(peaks)} located peaks; "
-            f"compile {comp:.1f} s, wall {wall:.1f} s, CPU {cpu:.1f} s."]
+    return [
+        f"`frc duffing --forcing 0.1 --omega-range 0.25 0.45 --set zeta=0.002 --set "
+        f"gamma=1`: {len(br)} points, peak {top.data['amplitude']:.6f} at Ω = "
+        f"{top.param:.6f} (expected 0.1830 at 0.3373), {len(peaks)} located peaks; "
+        f"compile {comp:.1f} s, wall {wall:.1f} s, CPU {cpu:.1f} s."
+    ]
 
 
 def floquet_labels(repeats: int) -> list[str]:
     s = get_system("hopf")
     log("hopf -1..100")
     (_, (br,)), comp, wall, cpu = timed(
-        lambda: continue_from_hopf(s, "mu", -1.0, 100.0, n_mesh=16), repeats)
+        lambda: continue_from_hopf(s, "mu", -1.0, 100.0, n_mesh=16), repeats
+    )
     r2 = br.data["amplitude"][:, 0] ** 2
     expo = (2 * r2 - 4 * r2**2) * 2 * np.pi
     truth = expo < 0
@@ -123,10 +134,12 @@ def floquet_labels(repeats: int) -> list[str]:
     logm = br.data["floquet_log"][1:]
     far = np.take_along_axis(logm, np.argmax(np.abs(logm), axis=1)[:, None], axis=1)[:, 0]
     err = float(np.max(np.abs(far - expo[1:]) / np.maximum(1.0, np.abs(expo[1:]))))
-    return [f"`hopf` branch, μ from −1 to 100: {len(br)} orbits, largest non-trivial "
-            f"multiplier from e^{expo[1:].max():.2f} down to e^{expo.min():.0f}; wrong "
-            f"stability labels: **{wrong}**; worst relative error of log|μ|: {err:.1e}; "
-            f"compile {comp:.1f} s, wall {wall:.1f} s, CPU {cpu:.1f} s."]
+    return [
+        f"`hopf` branch, μ from −1 to 100: {len(br)} orbits, largest non-trivial "
+        f"multiplier from e^{expo[1:].max():.2f} down to e^{expo.min():.0f}; wrong "
+        f"stability labels: **{wrong}**; worst relative error of log|μ|: {err:.1e}; "
+        f"compile {comp:.1f} s, wall {wall:.1f} s, CPU {cpu:.1f} s."
+    ]
 
 
 def nnm_frequency(A: float, mode: int, guess):
@@ -146,8 +159,11 @@ def nnm_frequency(A: float, mode: int, guess):
 
 def backbones(repeats: int) -> list[str]:
     s = get_system("shaw_pierre")
-    rows = ["| mode | points | amplitude range | Ω range | max rel. error vs undamped NNM | "
-            "min mode share | wall [s] |", "|---|---|---|---|---|---|---|"]
+    rows = [
+        "| mode | points | amplitude range | Ω range | max rel. error vs undamped NNM | "
+        "min mode share | wall [s] |",
+        "|---|---|---|---|---|---|---|",
+    ]
     for mode in (0, 1):
         log(f"shaw_pierre backbone mode {mode}")
         br, _, wall, _ = timed(lambda mode=mode: backbone(s, (0.01, 2.0), mode=mode), repeats)
@@ -159,9 +175,11 @@ def backbones(repeats: int) -> list[str]:
         for a, w in zip(A, W, strict=True):
             wn, guess = nnm_frequency(a, mode, guess)
             err = max(err, abs(w - wn) / wn)
-        rows.append(f"| {mode} | {len(br)} | {A.min():.6g}–{A.max():.6g} | {W.min():.6f}–"
-                    f"{W.max():.6f} | {err:.1e} | {br.data['mode_share'].min():.6f} | "
-                    f"{wall:.1f} |")
+        rows.append(
+            f"| {mode} | {len(br)} | {A.min():.6g}–{A.max():.6g} | {W.min():.6f}–"
+            f"{W.max():.6f} | {err:.1e} | {br.data['mode_share'].min():.6f} | "
+            f"{wall:.1f} |"
+        )
     return rows
 
 
@@ -169,8 +187,12 @@ def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
     ap.add_argument("--repeats", type=int, default=2)
     args = ap.parse_args()
-    md = ["## orbits — mesh adaptation, Floquet multipliers, resonances, backbones", "",
-          f"### Cost of mesh adaptation (van der Pol, μ from the Hopf point to {MU_END:g})", ""]
+    md = [
+        "## orbits — mesh adaptation, Floquet multipliers, resonances, backbones",
+        "",
+        f"### Cost of mesh adaptation (van der Pol, μ from the Hopf point to {MU_END:g})",
+        "",
+    ]
     md += adaptation(args.repeats)
     md += ["", "### A narrow superharmonic resonance", ""]
     md += resonance(args.repeats)
@@ -178,8 +200,7 @@ def main() -> None:
     md += floquet_labels(args.repeats)
     md += ["", "### Backbones of both shaw_pierre modes", ""]
     md += backbones(args.repeats)
-    md += ["", "Reproduce: `python benchmarks/bench_orbits.py --repeats "
-           f"{args.repeats}`."]
+    md += ["", f"Reproduce: `python benchmarks/bench_orbits.py --repeats {args.repeats}`."]
     write_section("orbits", "\n".join(md))
     print("\n".join(md))
 

@@ -58,18 +58,32 @@ def _lrz(rng: np.random.Generator) -> Variant:
 
 #: random variants of AUTO-07p demos (``--auto``)
 AUTO_SAMPLERS = {
-    "ab": lambda rng: Variant("ab", "Da", 0.0, 0.3,
-                              {"B": rng.uniform(8.0, 20.0), "beta": rng.uniform(2.0, 4.0)}),
-    "abc": lambda rng: Variant("abc", "D", 0.0, 0.4,
-                               {"B": _u(rng, 8.0, 0.1), "beta": _u(rng, 1.55, 0.1),
-                                "s": _u(rng, 0.04, 0.5)}),
+    "ab": lambda rng: Variant(
+        "ab", "Da", 0.0, 0.3, {"B": rng.uniform(8.0, 20.0), "beta": rng.uniform(2.0, 4.0)}
+    ),
+    "abc": lambda rng: Variant(
+        "abc",
+        "D",
+        0.0,
+        0.4,
+        {"B": _u(rng, 8.0, 0.1), "beta": _u(rng, 1.55, 0.1), "s": _u(rng, 0.04, 0.5)},
+    ),
     "lrz": _lrz,
-    "tor": lambda rng: Variant("tor", "nu", -0.9, -0.4,
-                               {"beta": _u(rng, 0.5, 0.1), "gamma": _u(rng, -0.6, 0.1),
-                                "r": _u(rng, 0.6, 0.1)}),
-    "plp": lambda rng: Variant("plp", "rho", 2.021628, 6.0,
-                               {"alpha": _u(rng, 0.2, 0.05), "kappa": _u(rng, 0.1, 0.05)},
-                               (45.55974, 177.7987)),
+    "tor": lambda rng: Variant(
+        "tor",
+        "nu",
+        -0.9,
+        -0.4,
+        {"beta": _u(rng, 0.5, 0.1), "gamma": _u(rng, -0.6, 0.1), "r": _u(rng, 0.6, 0.1)},
+    ),
+    "plp": lambda rng: Variant(
+        "plp",
+        "rho",
+        2.021628,
+        6.0,
+        {"alpha": _u(rng, 0.2, 0.05), "kappa": _u(rng, 0.1, 0.05)},
+        (45.55974, 177.7987),
+    ),
 }
 
 
@@ -109,9 +123,12 @@ def main(argv: list[str] | None = None) -> int:
             if diagram is not None:
                 n_hopf += len(diagram.special("hopf"))
                 n_fold += len(diagram.branches[0].special("fold"))
-                n_orbit += sum(s.kind in ORBIT_KINDS and s.kind != "fold"
-                               for b in diagram.branches if b.kind != "equilibrium"
-                               for s in b.special_points)
+                n_orbit += sum(
+                    s.kind in ORBIT_KINDS and s.kind != "fold"
+                    for b in diagram.branches
+                    if b.kind != "equilibrium"
+                    for s in b.special_points
+                )
                 n_cand += sum(len(b.candidates) for b in diagram.branches)
             bad += bool(fails)
             failures += [f"{v.label}: {f}" for f in fails]

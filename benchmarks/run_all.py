@@ -36,8 +36,13 @@ def main(argv: list[str] | None = None) -> int:
         i = argv.index("--")
         argv, extra = argv[:i], argv[i + 1 :]
     ap = argparse.ArgumentParser(description="Run all bifid benchmarks.")
-    ap.add_argument("-k", action="append", dest="keep", metavar="NAME",
-                    help="only scripts whose name contains NAME (repeatable)")
+    ap.add_argument(
+        "-k",
+        action="append",
+        dest="keep",
+        metavar="NAME",
+        help="only scripts whose name contains NAME (repeatable)",
+    )
     a = ap.parse_args(argv)
     scripts = discover(a.keep)
     if not scripts:
@@ -61,8 +66,11 @@ def main(argv: list[str] | None = None) -> int:
     for name, rc, dt in results:
         print(f"  {'ok    ' if rc == 0 else 'FAILED'} {name} ({dt:.0f} s)", file=sys.stderr)
     if failed:
-        print(f"run_all: {len(failed)} of {len(results)} benchmarks failed: "
-              + ", ".join(name for name, _, _ in failed), file=sys.stderr)
+        print(
+            f"run_all: {len(failed)} of {len(results)} benchmarks failed: "
+            + ", ".join(name for name, _, _ in failed),
+            file=sys.stderr,
+        )
         return 1
     print(f"run_all: all {len(results)} benchmarks passed", file=sys.stderr)
     return 0

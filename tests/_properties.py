@@ -68,10 +68,18 @@ def _range(rng: np.random.Generator, lo: tuple[float, float], hi: tuple[float, f
 
 def _hopf(rng: np.random.Generator) -> Variant:
     start, end = _range(rng, (-1.5, -0.6), (0.6, 1.5))
-    return Variant("hopf", "mu", start, end, {
-        "mu0": rng.uniform(-0.5, 0.5), "a2": rng.uniform(-1.5, 1.5),
-        "omega0": float(np.exp(rng.uniform(np.log(0.05), np.log(3.0)))),
-        "q5": rng.uniform(0.0, 2.0)})
+    return Variant(
+        "hopf",
+        "mu",
+        start,
+        end,
+        {
+            "mu0": rng.uniform(-0.5, 0.5),
+            "a2": rng.uniform(-1.5, 1.5),
+            "omega0": float(np.exp(rng.uniform(np.log(0.05), np.log(3.0)))),
+            "q5": rng.uniform(0.0, 2.0),
+        },
+    )
 
 
 def _vanderpol(rng: np.random.Generator) -> Variant:
@@ -83,8 +91,11 @@ def _vanderpol(rng: np.random.Generator) -> Variant:
 
 
 def _scaled(rng: np.random.Generator, system: System, skip: str, spread: float = 0.2):
-    return {p.name: p.default * rng.uniform(1 - spread, 1 + spread)
-            for p in system.parameters if p.name != skip and p.default != 0.0}
+    return {
+        p.name: p.default * rng.uniform(1 - spread, 1 + spread)
+        for p in system.parameters
+        if p.name != skip and p.default != 0.0
+    }
 
 
 def _flutter(rng: np.random.Generator) -> Variant:
@@ -114,8 +125,13 @@ def _duffing(rng: np.random.Generator) -> Variant:
     gamma = rng.uniform(0.1, 1.0) if hardening else -rng.uniform(0.05, 0.3)
     F = _log_uniform(rng, 0.005, 0.03 if hardening else 0.01)
     start, end = _range(rng, (0.6, 0.85), (1.15, 1.6))
-    return Variant("duffing", "Omega", start, end, {
-        "zeta": _log_uniform(rng, 0.005, 0.05), "gamma": gamma, "F": F})
+    return Variant(
+        "duffing",
+        "Omega",
+        start,
+        end,
+        {"zeta": _log_uniform(rng, 0.005, 0.05), "gamma": gamma, "F": F},
+    )
 
 
 def _shaw_pierre(rng: np.random.Generator) -> Variant:
@@ -128,8 +144,11 @@ def _shaw_pierre(rng: np.random.Generator) -> Variant:
 
 #: how to draw a random variant of each built-in system (other autonomous ones: generic)
 SAMPLERS: dict[str, Callable[[np.random.Generator], Variant]] = {
-    "hopf": _hopf, "vanderpol": _vanderpol, "flutter": _flutter,
-    "duffing": _duffing, "shaw_pierre": _shaw_pierre,
+    "hopf": _hopf,
+    "vanderpol": _vanderpol,
+    "flutter": _flutter,
+    "duffing": _duffing,
+    "shaw_pierre": _shaw_pierre,
 }
 
 
@@ -145,9 +164,12 @@ def autonomous_builtins() -> list[str]:
 
 def forced_builtins() -> list[str]:
     """Every built-in forced system."""
-    return [name for name in list_systems()
-            if get_system(name).kind == "forced"
-            and getattr(get_system(name), "source", "built-in") == "built-in"]
+    return [
+        name
+        for name in list_systems()
+        if get_system(name).kind == "forced"
+        and getattr(get_system(name), "source", "built-in") == "built-in"
+    ]
 
 
 def variants(name: str, n: int, seed: int) -> list[Variant]:
@@ -184,8 +206,13 @@ def _equilibrium(system: System, p: np.ndarray, idx: int, lam: float, guess: np.
         x = x + dx
         if np.max(np.abs(dx)) <= 1e-13 * (1 + np.max(np.abs(x))):
             return x
-    sol = root(lambda x: np.asarray(f(x, pl)), guess, jac=lambda x: np.asarray(jac(x, pl)),
-               method="hybr", tol=1e-13)
+    sol = root(
+        lambda x: np.asarray(f(x, pl)),
+        guess,
+        jac=lambda x: np.asarray(jac(x, pl)),
+        method="hybr",
+        tol=1e-13,
+    )
     return sol.x if sol.success else None
 
 
@@ -200,8 +227,16 @@ def _crit_re(system, p, idx, lam, x_guess, target: complex) -> tuple[float, comp
     return float(e[k].real), complex(e[k]), x
 
 
-def equilibrium_scan(system: System, param: str, lo: float, hi: float, p, x0=None,
-                     n_grid: int = 2001, omega_min: float = 1e-6) -> Scan:
+def equilibrium_scan(
+    system: System,
+    param: str,
+    lo: float,
+    hi: float,
+    p,
+    x0=None,
+    n_grid: int = 2001,
+    omega_min: float = 1e-6,
+) -> Scan:
     """The dense, independent scan of the equilibrium from ``lo`` (state ``x0``) to ``hi``
     (``hi < lo`` scans downwards); it stops where Newton loses the equilibrium (a fold)."""
     idx = system.index(param)
@@ -257,8 +292,7 @@ CHECKS: dict[str, tuple[Callable[[Variant, System, Diagram], list[str]], bool, t
 CHECKS = {}
 
 
-def register_check(name: str, needs_orbits: bool = False,
-                   kinds: tuple[str, ...] = ("autonomous",)):
+def register_check(name: str, needs_orbits: bool = False, kinds: tuple[str, ...] = ("autonomous",)):
     """Register a property check (decorator) for systems of the given ``kinds``."""
 
     def deco(fn):
@@ -286,8 +320,7 @@ def check_equilibria(variant: Variant, system: System, diagram: Diagram) -> list
             return [f"the branch turns after {hi:.10g} without a located fold there"]
         end = folds[0].index
         hi = float(eq.params[end])
-    scan = equilibrium_scan(system, variant.param, lo, hi, eq.p, eq.solutions[0],
-                            n_grid=2001)
+    scan = equilibrium_scan(system, variant.param, lo, hi, eq.p, eq.solutions[0], n_grid=2001)
     out = []
     if scan.failed_at is not None and not turns.size:
         return [f"the scan lost the equilibrium at {scan.failed_at:.6g}"]
@@ -306,10 +339,11 @@ def check_equilibria(variant: Variant, system: System, diagram: Diagram) -> list
     bps = [c.bracket for c in eq.candidates if c.kind == "branch_point"]
     for a, b in scan.real:
         ok = any(min(c) - dp <= max(a, b) and min(a, b) <= max(c) + dp for c in bps) or any(
-            min(a, b) - dp <= f.param <= max(a, b) + dp for f in folds)
+            min(a, b) - dp <= f.param <= max(a, b) + dp for f in folds
+        )
         if not ok:
             out.append(f"missed real crossing in [{a:.8g}, {b:.8g}] (no fold, no candidate)")
-    for f in folds[1 if turns.size else 0:]:
+    for f in folds[1 if turns.size else 0 :]:
         if f.index < end and covered[0] <= f.param <= covered[1]:
             out.append(f"false fold at {f.param:.10g}")
     for c in eq.candidates:
@@ -345,8 +379,14 @@ def independent_multipliers(system: System, p, x0, period: float) -> np.ndarray:
     n = system.n_states
     rhs, pj = _variational(system), jnp.asarray(np.asarray(p, dtype=float))
     z0 = np.concatenate([np.asarray(x0, dtype=float), np.eye(n).ravel()])
-    sol = solve_ivp(lambda t, z: np.asarray(rhs(t, z, pj)), (0.0, period), z0,
-                    method="DOP853", rtol=1e-10, atol=1e-12)
+    sol = solve_ivp(
+        lambda t, z: np.asarray(rhs(t, z, pj)),
+        (0.0, period),
+        z0,
+        method="DOP853",
+        rtol=1e-10,
+        atol=1e-12,
+    )
     return np.linalg.eigvals(sol.y[n:, -1].reshape(n, n))
 
 
@@ -405,34 +445,49 @@ def check_orbit_branch(system: System, br, n_sample: int = 12) -> list[str]:
     idx = sorted(i for i in idx if not zero[i])
     out, labels = [], {}
     for i in idx:
-        p, x0, T = _orbit_of(system, br, br.solutions[i], br.params[i], M,
-                             None if forced is None else forced[i])
+        p, x0, T = _orbit_of(
+            system, br, br.solutions[i], br.params[i], M, None if forced is None else forced[i]
+        )
         mu = _nontrivial(independent_multipliers(system, p, x0, T), autonomous)
         labels[i] = _label(mu)
         if np.isfinite(labels[i]) and bool(labels[i]) != bool(br.stable[i]):
-            out.append(f"orbit {i} at {br.params[i]:.8g}: labelled "
-                       f"{'stable' if br.stable[i] else 'unstable'}, independent "
-                       f"max|mu| = {np.max(np.abs(mu)):.8g}")
+            out.append(
+                f"orbit {i} at {br.params[i]:.8g}: labelled "
+                f"{'stable' if br.stable[i] else 'unstable'}, independent "
+                f"max|mu| = {np.max(np.abs(mu)):.8g}"
+            )
     known = [i for i in idx if np.isfinite(labels[i])]
     brackets = [c.bracket for c in br.candidates]
     for i, j in itertools.pairwise(known):
         if labels[i] == labels[j]:
             continue
         lo, hi = sorted((float(br.params[i]), float(br.params[j])))
-        if not (any(i <= sp.index < j for sp in pts)
-                or any(min(c) <= hi and lo <= max(c) for c in brackets)):
-            out.append(f"missed orbit bifurcation between orbits {i} and {j} "
-                       f"({br.params[i]:.8g} .. {br.params[j]:.8g}): stability changes")
+        if not (
+            any(i <= sp.index < j for sp in pts)
+            or any(min(c) <= hi and lo <= max(c) for c in brackets)
+        ):
+            out.append(
+                f"missed orbit bifurcation between orbits {i} and {j} "
+                f"({br.params[i]:.8g} .. {br.params[j]:.8g}): stability changes"
+            )
     for sp in pts:
         Ms = int(sp.data.get("n_mesh", M))
-        data_i = None if autonomous else (
-            (sp.param, br.data["forcing"][sp.index]) if br.param == "Omega"
-            else (br.data["omega"][sp.index], sp.param))
+        data_i = (
+            None
+            if autonomous
+            else (
+                (sp.param, br.data["forcing"][sp.index])
+                if br.param == "Omega"
+                else (br.data["omega"][sp.index], sp.param)
+            )
+        )
         p, x0, T = _orbit_of(system, br, np.asarray(sp.solution), sp.param, Ms, data_i)
         mults = independent_multipliers(system, p, x0, T)
         if not _on_circle(sp.kind, mults, autonomous):
-            out.append(f"false {sp.kind} at {sp.param:.10g}: independent multipliers "
-                       f"{np.round(mults, 8).tolist()}")
+            out.append(
+                f"false {sp.kind} at {sp.param:.10g}: independent multipliers "
+                f"{np.round(mults, 8).tolist()}"
+            )
     return out
 
 
@@ -453,11 +508,14 @@ def run_variant(variant: Variant, *, orbits: bool = False) -> tuple[Diagram, lis
     p = system.param_vector(variant.overrides)
     if system.kind == "forced":
         br = frc(system, float(p[system.index("F")]), (variant.start, variant.end), p=p)
-        diagram, orbits = Diagram(kind="frc", system=system.name, param="Omega",
-                                  branches=[br]), True
+        diagram, orbits = (
+            Diagram(kind="frc", system=system.name, param="Omega", branches=[br]),
+            True,
+        )
     else:
-        diagram = bifurcation_diagram(system, variant.param, variant.start, variant.end,
-                                      p=p, x0=variant.x0, orbits=orbits)
+        diagram = bifurcation_diagram(
+            system, variant.param, variant.start, variant.end, p=p, x0=variant.x0, orbits=orbits
+        )
     failures = []
     for name, (check, needs_orbits, kinds) in CHECKS.items():
         if (needs_orbits and not orbits) or system.kind not in kinds:

@@ -48,8 +48,19 @@ def test_user_errors_exit_2_with_one_line_and_no_traceback(bifid_cli, args, need
 def test_truncated_branch_is_incomplete_with_exit_3(bifid_cli):
     """Check `continue flutter --range 14 20 --max-steps 2`: one JSON object with
     complete=false and the branch's end reason, then exit 3."""
-    r = bifid_cli("continue", "flutter", "--param", "U", "--range", "14", "20", "--max-steps",
-                  "2", "--json", "--quiet")
+    r = bifid_cli(
+        "continue",
+        "flutter",
+        "--param",
+        "U",
+        "--range",
+        "14",
+        "20",
+        "--max-steps",
+        "2",
+        "--json",
+        "--quiet",
+    )
     assert r.code == 3, r.stderr
     data = r.json
     assert data["complete"] is False and data["status"] == "steps"
@@ -59,8 +70,7 @@ def test_truncated_branch_is_incomplete_with_exit_3(bifid_cli):
 
 def test_no_hopf_point_in_range_is_a_complete_answer(bifid_cli):
     """Check flutter at 5..10 m/s: a stable equilibrium branch, no Hopf point, exit 0."""
-    r = bifid_cli("continue", "flutter", "--param", "U", "--range", "5", "10", "--json",
-                  "--quiet")
+    r = bifid_cli("continue", "flutter", "--param", "U", "--range", "5", "10", "--json", "--quiet")
     assert r.code == 0, r.stderr
     data = r.json
     assert data["hopf"] == [] and data["orbits"] == [] and data["candidates"] == []
@@ -73,8 +83,17 @@ def test_van_der_pol_collision_is_not_a_second_hopf_point(bifid_cli):
     """Check `continue vanderpol --range -0.2 1.2`: the eigenvalue collision at mu = 1
     (a complex pair becoming two real ones) is neither a Hopf point nor a candidate; the
     one Hopf point is mu = 0, in the JSON and the summary line alike."""
-    args = ("continue", "vanderpol", "--param", "mu", "--range", "-0.2", "1.2", "--no-orbits",
-            "--quiet")
+    args = (
+        "continue",
+        "vanderpol",
+        "--param",
+        "mu",
+        "--range",
+        "-0.2",
+        "1.2",
+        "--no-orbits",
+        "--quiet",
+    )
     data = bifid_cli(*args, "--json").json
     (h,) = data["hopf"]
     assert abs(h["param"]) < 1e-12 and h["omega"] == pytest.approx(1.0, abs=1e-12)
@@ -89,17 +108,36 @@ def _fold_field(x, p):
     return jnp.stack([p[0] - x[0] ** 2, -x[1]])
 
 
-register("fold_test", System(name="fold_test", states=("x", "y"),
-                             parameters=(Parameter("mu", 1.0),), field=_fold_field,
-                             default_param="mu"), overwrite=True)
+register(
+    "fold_test",
+    System(
+        name="fold_test",
+        states=("x", "y"),
+        parameters=(Parameter("mu", 1.0),),
+        field=_fold_field,
+        default_param="mu",
+    ),
+    overwrite=True,
+)
 
 
 def test_x0_picks_the_branch_and_the_range_starts_at_its_first_value(bifid_cli):
     """Check `--x0` and a descending range on x' = mu - x^2: from x = -1 at mu = 1 the run
     goes down to the fold at mu = 0 (verified, state x = 0), turns and ends at mu = 1 on
     x = +1; from the default x0 = 0 (a singular start) it fails with a hint."""
-    r = bifid_cli("continue", "fold_test", "--param", "mu", "--range", "1", "-1", "--x0", "-0.9,0",
-                  "--json", "--quiet")
+    r = bifid_cli(
+        "continue",
+        "fold_test",
+        "--param",
+        "mu",
+        "--range",
+        "1",
+        "-1",
+        "--x0",
+        "-0.9,0",
+        "--json",
+        "--quiet",
+    )
     assert r.code == 0, r.stderr
     data = r.json
     (fold,) = data["folds"]
@@ -116,9 +154,27 @@ def test_x0_picks_the_branch_and_the_range_starts_at_its_first_value(bifid_cli):
 def test_continue_json_contract_and_outputs(bifid_cli, tmp_path):
     """Check `bifid continue hopf --json`: keys of the contract, values, plot and dataset files."""
     png, nc = tmp_path / "h.png", tmp_path / "h.nc"
-    r = bifid_cli("continue", "hopf", "--param", "mu", "--range", "-1", "1", "--set", "mu0=0.2",
-                  "--set", "a2=1", "--mesh", "16", "--json", "--quiet", "--plot", str(png),
-                  "--out", str(nc))
+    r = bifid_cli(
+        "continue",
+        "hopf",
+        "--param",
+        "mu",
+        "--range",
+        "-1",
+        "1",
+        "--set",
+        "mu0=0.2",
+        "--set",
+        "a2=1",
+        "--mesh",
+        "16",
+        "--json",
+        "--quiet",
+        "--plot",
+        str(png),
+        "--out",
+        str(nc),
+    )
     assert r.code == 0, r.stderr
     data = r.json
     (h,) = data["hopf"]
@@ -142,8 +198,9 @@ def test_continue_json_contract_and_outputs(bifid_cli, tmp_path):
 
 def test_newton_failure_is_reported_not_hidden(bifid_cli):
     """Check a failing continuation exits 3 with complete=false, never a silent partial branch."""
-    r = bifid_cli("frc", "duffing", "--forcing", "1e6", "--omega-range", "1.0", "1.1", "--json",
-                  "--quiet")
+    r = bifid_cli(
+        "frc", "duffing", "--forcing", "1e6", "--omega-range", "1.0", "1.1", "--json", "--quiet"
+    )
     assert r.code == 3, r.stderr
     assert "Traceback" not in r.stderr
     if r.stdout:

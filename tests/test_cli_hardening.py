@@ -32,9 +32,15 @@ from bifid.data import (
 )
 
 N_TRIED: dict[str, int] = {}
-_SETTINGS = settings(max_examples=25, deadline=None,
-                     suppress_health_check=[HealthCheck.function_scoped_fixture,
-                                            HealthCheck.too_slow, HealthCheck.filter_too_much])
+_SETTINGS = settings(
+    max_examples=25,
+    deadline=None,
+    suppress_health_check=[
+        HealthCheck.function_scoped_fixture,
+        HealthCheck.too_slow,
+        HealthCheck.filter_too_much,
+    ],
+)
 
 
 def run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
@@ -60,16 +66,22 @@ def _digest(paths: list[Path]) -> dict[Path, str]:
     out = {}
     for p in paths:
         files = sorted(p.rglob("*")) if p.is_dir() else [p]
-        out[p] = hashlib.sha256(b"".join(f.read_bytes() for f in files if f.is_file())
-                                ).hexdigest()
+        out[p] = hashlib.sha256(b"".join(f.read_bytes() for f in files if f.is_file())).hexdigest()
     return out
 
 
 def _lco(n_records: int, bad: str | None) -> object:
     t = np.arange(200) / 100.0
-    recs = [LCORecord(param=15.0 + 0.5 * k, signals=np.column_stack(
-        [0.01 * np.sin(15 * t), 0.05 * np.cos(15 * t)]), sample_rate=100.0,
-        stable=bool(k % 2), frequency=15.0) for k in range(n_records)]
+    recs = [
+        LCORecord(
+            param=15.0 + 0.5 * k,
+            signals=np.column_stack([0.01 * np.sin(15 * t), 0.05 * np.cos(15 * t)]),
+            sample_rate=100.0,
+            stable=bool(k % 2),
+            frequency=15.0,
+        )
+        for k in range(n_records)
+    ]
     ds = lco_dataset(recs, ["h", "alpha"], "U", "m/s", "flutter", {}, "test")
     if bad == "nan_signals":
         ds["signals"][:] = np.nan
@@ -86,9 +98,17 @@ def _lco(n_records: int, bad: str | None) -> object:
 
 def _forced(n: int) -> object:
     t = np.arange(300) / 50.0
-    recs = [ForcedRecord(omega=1.0 + 0.01 * k, forcing=0.01, signals=np.column_stack(
-        [0.1 * np.sin(t), 0.1 * np.cos(t)]), sample_rate=50.0, stable=True,
-        force=0.01 * np.cos(t)) for k in range(n)]
+    recs = [
+        ForcedRecord(
+            omega=1.0 + 0.01 * k,
+            forcing=0.01,
+            signals=np.column_stack([0.1 * np.sin(t), 0.1 * np.cos(t)]),
+            sample_rate=50.0,
+            stable=True,
+            force=0.01 * np.cos(t),
+        )
+        for k in range(n)
+    ]
     return forced_dataset(recs, ["x1", "x2"], "x1", "shaw_pierre", {}, "test")
 
 
@@ -100,10 +120,27 @@ def valid_nc(tmp_path_factory) -> bytes:
 
 
 def _bad_dataset(tmp: Path, data: st.DataObject, valid_nc: bytes) -> Path:
-    kind = data.draw(st.sampled_from(["bytes", "truncated", "flipped", "empty_file", "json",
-                                      "zero_records", "nan_signals", "nan_param", "inf_rate",
-                                      "drop_signals", "wrong_kind", "forced_for_lco",
-                                      "directory", "missing"]), label="dataset")
+    kind = data.draw(
+        st.sampled_from(
+            [
+                "bytes",
+                "truncated",
+                "flipped",
+                "empty_file",
+                "json",
+                "zero_records",
+                "nan_signals",
+                "nan_param",
+                "inf_rate",
+                "drop_signals",
+                "wrong_kind",
+                "forced_for_lco",
+                "directory",
+                "missing",
+            ]
+        ),
+        label="dataset",
+    )
     N_TRIED[f"dataset:{kind}"] = N_TRIED.get(f"dataset:{kind}", 0) + 1
     p = tmp / f"bad_{kind}.nc"
     if kind == "bytes":
@@ -143,10 +180,23 @@ def _bad_dataset(tmp: Path, data: st.DataObject, valid_nc: bytes) -> Path:
 
 
 def _bad_model(tmp: Path, data: st.DataObject) -> Path:
-    kind = data.draw(st.sampled_from(["no_dir", "empty_dir", "json_garbage", "json_list",
-                                      "unknown_type", "pickle_npz", "npz_garbage",
-                                      "huge_numbers", "missing_arrays", "file_not_dir"]),
-                     label="model")
+    kind = data.draw(
+        st.sampled_from(
+            [
+                "no_dir",
+                "empty_dir",
+                "json_garbage",
+                "json_list",
+                "unknown_type",
+                "pickle_npz",
+                "npz_garbage",
+                "huge_numbers",
+                "missing_arrays",
+                "file_not_dir",
+            ]
+        ),
+        label="model",
+    )
     N_TRIED[f"model:{kind}"] = N_TRIED.get(f"model:{kind}", 0) + 1
     d = tmp / f"model_{kind}"
     if kind == "no_dir":
@@ -156,8 +206,13 @@ def _bad_model(tmp: Path, data: st.DataObject) -> Path:
         return d
     d.mkdir()
     mtype = data.draw(st.sampled_from(["hopf_hybrid", "forced_kernel", "mechanistic"]))
-    meta = {"format": "bifid-model", "format_version": 1, "type": mtype, "params": {},
-            "settings": {}}
+    meta = {
+        "format": "bifid-model",
+        "format_version": 1,
+        "type": mtype,
+        "params": {},
+        "settings": {},
+    }
     if kind == "json_garbage":
         (d / "model.json").write_bytes(data.draw(st.binary(max_size=200)))
     elif kind == "json_list":
@@ -183,9 +238,9 @@ def _bad_model(tmp: Path, data: st.DataObject) -> Path:
 
 @_SETTINGS
 @given(data=st.data())
-def test_fit_refuses_hostile_datasets(tmp_path: Path, valid_nc: bytes,
-                                      capsys: pytest.CaptureFixture[str],
-                                      data: st.DataObject) -> None:
+def test_fit_refuses_hostile_datasets(
+    tmp_path: Path, valid_nc: bytes, capsys: pytest.CaptureFixture[str], data: st.DataObject
+) -> None:
     """``bifid fit hopf|forced|mechanistic BAD --out M``: one-line error, input unchanged."""
     tmp_path = Path(tempfile.mkdtemp(dir=tmp_path))  # fresh per generated example
     bad = _bad_dataset(tmp_path, data, valid_nc)
@@ -206,13 +261,23 @@ def test_fit_refuses_hostile_datasets(tmp_path: Path, valid_nc: bytes,
 
 @_SETTINGS
 @given(data=st.data())
-def test_predict_refuses_hostile_models(tmp_path: Path, capsys: pytest.CaptureFixture[str],
-                                        data: st.DataObject) -> None:
+def test_predict_refuses_hostile_models(
+    tmp_path: Path, capsys: pytest.CaptureFixture[str], data: st.DataObject
+) -> None:
     """``bifid predict BAD ...``: refused (pickle-bearing arrays included), input unchanged."""
     tmp_path = Path(tempfile.mkdtemp(dir=tmp_path))
     model = _bad_model(tmp_path, data)
-    opts = data.draw(st.sampled_from([[], ["--frc", "--forcing", "0.01"], ["--backbone"],
-                                      ["--range", "14", "18"], ["--scurve", "--omega", "1"]]))
+    opts = data.draw(
+        st.sampled_from(
+            [
+                [],
+                ["--frc", "--forcing", "0.01"],
+                ["--backbone"],
+                ["--range", "14", "18"],
+                ["--scurve", "--omega", "1"],
+            ]
+        )
+    )
     before = _digest([model]) if model.exists() else {}
     N_TRIED["predict argv"] = N_TRIED.get("predict argv", 0) + 1
     code, o, e = run(["predict", str(model), *opts, "--json"], capsys)
@@ -222,9 +287,9 @@ def test_predict_refuses_hostile_models(tmp_path: Path, capsys: pytest.CaptureFi
 
 @_SETTINGS
 @given(data=st.data())
-def test_cbc_resume_refuses_hostile_datasets(tmp_path: Path, valid_nc: bytes,
-                                             capsys: pytest.CaptureFixture[str],
-                                             data: st.DataObject) -> None:
+def test_cbc_resume_refuses_hostile_datasets(
+    tmp_path: Path, valid_nc: bytes, capsys: pytest.CaptureFixture[str], data: st.DataObject
+) -> None:
     """``bifid cbc ... --resume --out BAD``: refused before any experiment, file unchanged."""
     tmp_path = Path(tempfile.mkdtemp(dir=tmp_path))
     bad = _bad_dataset(tmp_path, data, valid_nc)
@@ -232,8 +297,21 @@ def test_cbc_resume_refuses_hostile_datasets(tmp_path: Path, valid_nc: bytes,
         return  # a valid forced dataset / nothing to resume: covered elsewhere
     before = _digest([bad])
     N_TRIED["cbc argv"] = N_TRIED.get("cbc argv", 0) + 1
-    code, o, e = run(["cbc", "hopf", "--protocol", "ppcbc", "--values", "-0.1", "--resume",
-                      "--out", str(bad), "--quiet"], capsys)
+    code, o, e = run(
+        [
+            "cbc",
+            "hopf",
+            "--protocol",
+            "ppcbc",
+            "--values",
+            "-0.1",
+            "--resume",
+            "--out",
+            str(bad),
+            "--quiet",
+        ],
+        capsys,
+    )
     _refused(code, o, e)
     assert _digest([bad]) == before
 

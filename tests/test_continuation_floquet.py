@@ -15,8 +15,16 @@ from bifid.continuation._floquet import autonomous_rhs
 from bifid.systems import System, get_system
 from bifid.systems._base import Parameter
 
-CASES = [(-0.05, 0.2, True), (-0.1, 1.0, True), (0.5, 1.0, False), (5.0, 1.0, False),
-         (0.03, 0.0198, False), (5.0, 0.2, False), (100.0, 1.0, False), (5.0, 0.1, False)]
+CASES = [
+    (-0.05, 0.2, True),
+    (-0.1, 1.0, True),
+    (0.5, 1.0, False),
+    (5.0, 1.0, False),
+    (0.03, 0.0198, False),
+    (5.0, 0.2, False),
+    (100.0, 1.0, False),
+    (5.0, 0.1, False),
+]
 
 
 def _hopf_orbit(mu, omega0, inner=False, M=32):
@@ -54,8 +62,9 @@ def _coupled_field(x, p):
     # the hopf normal form in (x0, x1) drives a contracting third state
     r2 = x[0] ** 2 + x[1] ** 2
     g = p[0] + r2 - r2**2
-    return jnp.stack([g * x[0] - x[1], g * x[1] + x[0],
-                      -p[1] * (1.0 + x[0] ** 2) * x[2] + x[0] * x[1]])
+    return jnp.stack(
+        [g * x[0] - x[1], g * x[1] + x[0], -p[1] * (1.0 + x[0] ** 2) * x[2] + x[0] * x[1]]
+    )
 
 
 def _coupled_orbit(mu, c, M=64):
@@ -77,12 +86,21 @@ def test_three_state_multipliers_match_exact_values():
     """Check both non-trivial log-moduli of a coupled three-state orbit (1e-9 relative),
     from 0.6 down to e^-1382 (a multiplier no double holds)."""
     cases = [(0.5, 0.05), (2.0, 20.0), (0.5, 110.0)]
-    system = System(name="coupled", states=("x0", "x1", "x2"),
-                    parameters=(Parameter("mu", 0.0, "nd", ""), Parameter("c", 1.0, "nd", "")),
-                    field=_coupled_field, default_param="mu")
+    system = System(
+        name="coupled",
+        states=("x0", "x1", "x2"),
+        parameters=(Parameter("mu", 0.0, "nd", ""), Parameter("c", 1.0, "nd", "")),
+        field=_coupled_field,
+        default_param="mu",
+    )
     orbits = [_coupled_orbit(mu, c) for mu, c in cases]
-    fl = floquet(autonomous_rhs(system.field), np.array([o[0] for o in orbits]),
-                 np.full(len(cases), 2 * np.pi), np.array(cases, dtype=float), autonomous=True)
+    fl = floquet(
+        autonomous_rhs(system.field),
+        np.array([o[0] for o in orbits]),
+        np.full(len(cases), 2 * np.pi),
+        np.array(cases, dtype=float),
+        autonomous=True,
+    )
     for i, (_, exact) in enumerate(orbits):
         _, logm = fl.nontrivial(i)
         assert np.allclose(np.sort(logm), exact, rtol=1e-9)

@@ -73,8 +73,9 @@ def test_stable_orbit_matches_long_simulation_and_one_trivial_multiplier(flutter
     U, T = float(br.params[i]), float(br.data["period"][i])
     M = br.meta["n_mesh"]
     x0 = br.solutions[i, : M * 6].reshape(M, 6)[0] * 1.05  # start off the orbit
-    ts = np.concatenate([np.linspace(0, 150 * T, 3000, endpoint=False),
-                         np.linspace(150 * T, 151 * T, 20001)])
+    ts = np.concatenate(
+        [np.linspace(0, 150 * T, 3000, endpoint=False), np.linspace(150 * T, 151 * T, 20001)]
+    )
     ys = simulate(s, x0, ts, s.param_vector(U=U))
     tail = ys[ts >= 150 * T]
     amp = br.data["amplitude"][i]
@@ -99,7 +100,11 @@ def test_cycle_fold_converged_in_mesh_size(flutter):
     i = fold.index - 2  # an unstable orbit just before the fold
     V = resample_orbit(br.solutions[i, : M * 6].reshape(M, 6), 2 * M)
     fine = periodic_orbits(
-        s, "U", V, float(br.data["period"][i]), p=s.param_vector(U=float(br.params[i])),
+        s,
+        "U",
+        V,
+        float(br.data["period"][i]),
+        p=s.param_vector(U=float(br.params[i])),
         n_mesh=2 * M,
         options=ContinuationOptions(ds=0.02, ds_max=0.05, max_steps=12, direction=-1),
     )

@@ -65,7 +65,7 @@ def test_scurve_at_1p05_has_two_folds_and_unstable_middle(duffing):
     assert Fs[0] == pytest.approx(0.0109, rel=0.02) and Fs[1] == pytest.approx(0.0216, rel=0.02)
     a, b = sorted(f.index for f in sc.special("fold"))
     assert not sc.stable[a + 2 : b].any()
-    assert sc.stable[: a].all() and sc.stable[b + 2 :].all()
+    assert sc.stable[:a].all() and sc.stable[b + 2 :].all()
 
 
 def test_backbone_matches_first_order_frequency_amplitude_relation(duffing):

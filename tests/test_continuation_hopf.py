@@ -62,7 +62,12 @@ def test_supercritical_case_has_negative_l1_and_stable_orbits():
 def test_equilibrium_stability_changes_at_hopf():
     """Check that the origin is stable below mu0 and unstable above."""
     s = get_system("hopf")
-    eq = equilibria(s, "mu", p=s.param_vector(mu0=0.1), start=-0.5,
-                    options=ContinuationOptions(ds=0.05, ds_max=0.1, p_min=-0.5, p_max=0.5))
+    eq = equilibria(
+        s,
+        "mu",
+        p=s.param_vector(mu0=0.1),
+        start=-0.5,
+        options=ContinuationOptions(ds=0.05, ds_max=0.1, p_min=-0.5, p_max=0.5),
+    )
     assert eq.stable[eq.params < 0.1 - 1e-9].all()
     assert not eq.stable[eq.params > 0.1 + 1e-9].any()

@@ -30,23 +30,41 @@ def _field(z, p):
     h, d = 0.5 * (s1 + s2), 0.5 * (s1 - s2)
     du = -0.5 * v + (h + d * c) * u + d * s * v
     dv = 0.5 * u + d * s * u + (h - d * c) * v
-    return jnp.stack([g * x - y, g * y + x, du, dv, (mu - TORUS_AT) * a - BETA * b,
-                      BETA * a + (mu - TORUS_AT) * b])
+    return jnp.stack(
+        [
+            g * x - y,
+            g * y + x,
+            du,
+            dv,
+            (mu - TORUS_AT) * a - BETA * b,
+            BETA * a + (mu - TORUS_AT) * b,
+        ]
+    )
 
 
 def test_period_doubling_and_torus_located_and_verified():
     """Check the period doubling at mu = 0 (a real multiplier at -1) and the torus point
     at mu = 0.3 (a complex pair on the unit circle at angle 2 pi 0.37), both to 1e-9,
     verified, and nothing else."""
-    s = System(name="pd_torus", states=("x", "y", "u", "v", "a", "b"),
-               parameters=(Parameter("mu", -0.4, "nd", ""),), field=_field,
-               default_param="mu")
+    s = System(
+        name="pd_torus",
+        states=("x", "y", "u", "v", "a", "b"),
+        parameters=(Parameter("mu", -0.4, "nd", ""),),
+        field=_field,
+        default_param="mu",
+    )
     M = 16
     t = 2 * np.pi * np.arange(M) / M
     orbit = np.zeros((M, 6))
     orbit[:, 0], orbit[:, 1] = np.cos(t), np.sin(t)
-    br = periodic_orbits(s, "mu", orbit, 2 * np.pi, n_mesh=M, options=ContinuationOptions(
-        ds=0.05, ds_max=0.1, ds_min=1e-9, p_min=-0.4, p_max=0.6))
+    br = periodic_orbits(
+        s,
+        "mu",
+        orbit,
+        2 * np.pi,
+        n_mesh=M,
+        options=ContinuationOptions(ds=0.05, ds_max=0.1, ds_min=1e-9, p_min=-0.4, p_max=0.6),
+    )
     assert br.status == "range"
     (pd,) = br.special("period_doubling")
     (ns,) = br.special("torus")
@@ -54,10 +72,10 @@ def test_period_doubling_and_torus_located_and_verified():
     assert ns.param == pytest.approx(TORUS_AT, abs=1e-9)
     assert pd.verification["multiplier_plus_one"] < 1e-6
     assert ns.verification["modulus_minus_one"] < 1e-6
-    assert ns.verification["argument"] == pytest.approx(2 * np.pi * (1 - BETA), abs=1e-6) or \
-        ns.verification["argument"] == pytest.approx(2 * np.pi * BETA, abs=1e-6)
+    assert ns.verification["argument"] == pytest.approx(
+        2 * np.pi * (1 - BETA), abs=1e-6
+    ) or ns.verification["argument"] == pytest.approx(2 * np.pi * BETA, abs=1e-6)
     assert not br.special("cycle_fold") and not br.special("branch_point")
     assert not br.candidates
     # stable below the period doubling, unstable beyond
     assert np.all(br.stable[br.params < -1e-6]) and not np.any(br.stable[br.params > 1e-6])
-

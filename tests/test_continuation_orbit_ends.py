@@ -21,19 +21,29 @@ def _two_hopf(x, p):
 
 
 def _system(name, field):
-    return System(name=name, states=("x", "y"), parameters=(Parameter("mu", 0.0, "nd", ""),),
-                  field=field, default_param="mu")
+    return System(
+        name=name,
+        states=("x", "y"),
+        parameters=(Parameter("mu", 0.0, "nd", ""),),
+        field=field,
+        default_param="mu",
+    )
 
 
 def test_branch_shrinking_into_a_hopf_point_ends_there():
     """Check that the orbits born at mu = 0 end at the Hopf point mu = 1 (status "hopf",
     located to 1e-9, a zero-amplitude last orbit) with no cycle fold, radii exact."""
     s = _system("two_hopf", _two_hopf)
-    eq = equilibria(s, "mu", start=-0.5, options=ContinuationOptions(
-        ds=0.05, ds_max=0.1, p_min=-0.5, p_max=1.5))
+    eq = equilibria(
+        s, "mu", start=-0.5, options=ContinuationOptions(ds=0.05, ds_max=0.1, p_min=-0.5, p_max=1.5)
+    )
     h0 = min(eq.special("hopf"), key=lambda h: h.param)
-    br = hopf_orbits(s, h0, n_mesh=16, options=ContinuationOptions(
-        ds=1e-3, ds_max=0.1, ds_min=1e-9, p_min=-0.5, p_max=1.5))
+    br = hopf_orbits(
+        s,
+        h0,
+        n_mesh=16,
+        options=ContinuationOptions(ds=1e-3, ds_max=0.1, ds_min=1e-9, p_min=-0.5, p_max=1.5),
+    )
     assert br.status == "hopf" and br.complete
     assert br.params[-1] == pytest.approx(1.0, abs=1e-9)
     assert br.meta["end_hopf"]["param"] == pytest.approx(1.0, abs=1e-9)

@@ -27,12 +27,10 @@ def simulated_orbit(mu: float) -> tuple[float, np.ndarray]:
     def f(t, z):
         return [z[1], 2 * mu * z[1] - z[0] ** 2 * z[1] - z[0]]
 
-    settle = solve_ivp(f, (0, 40 + 30 * mu), [2.0, 0.0], rtol=1e-12, atol=1e-12,
-                       method="DOP853")
+    settle = solve_ivp(f, (0, 40 + 30 * mu), [2.0, 0.0], rtol=1e-12, atol=1e-12, method="DOP853")
     z0 = settle.y[:, -1]
     span = 4 * (7 + 3 * mu)
-    sol = solve_ivp(f, (0, span), z0, rtol=1e-13, atol=1e-14, method="DOP853",
-                    dense_output=True)
+    sol = solve_ivp(f, (0, span), z0, rtol=1e-13, atol=1e-14, method="DOP853", dense_output=True)
     ts = np.linspace(0, span, 200001)
     z1 = sol.sol(ts)[0]
     up = np.flatnonzero((z1[:-1] < 0) & (z1[1:] >= 0))
@@ -42,8 +40,12 @@ def simulated_orbit(mu: float) -> tuple[float, np.ndarray]:
     for k in range(2):
         zk = np.abs(sol.sol(ts)[k])
         i = int(np.argmax(zk[ts < crossings[1] + period]))
-        res = minimize_scalar(lambda t, k=k: -abs(sol.sol(t)[k]), bounds=(ts[i - 2], ts[i + 2]),
-                              method="bounded", options={"xatol": 1e-12})
+        res = minimize_scalar(
+            lambda t, k=k: -abs(sol.sol(t)[k]),
+            bounds=(ts[i - 2], ts[i + 2]),
+            method="bounded",
+            options={"xatol": 1e-12},
+        )
         amp.append(-res.fun)
     return period, np.array(amp)
 
@@ -54,8 +56,11 @@ def orbit_at(br, s, mu: float):
     i = int(np.argmin(np.abs(br.params - mu)))
     y = np.concatenate([br.solutions[i], [br.params[i]]])
     V = y[: M * n].reshape(M, n)
-    args = {"p": s.param_vector(mu=mu), "idx": np.asarray(0),
-            "dref": (fourier_differentiation_matrix(M) @ V).ravel()}
+    args = {
+        "p": s.param_vector(mu=mu),
+        "idx": np.asarray(0),
+        "dref": (fourier_differentiation_matrix(M) @ V).ravel(),
+    }
     e = np.zeros_like(y)
     e[-1] = 1.0
     y, ok, _, _ = correct(orbit_problem(s.field, M, n), y, e, mu, args, tol=1e-12, max_iter=20)
@@ -73,13 +78,15 @@ def interpolant_max(V: np.ndarray) -> np.ndarray:
     fine = np.fft.irfft(np.fft.rfft(V, axis=0), n=16 * M, axis=0) * 16
     out = []
     for j in range(V.shape[1]):
+
         def value(tau, j=j):
             return -abs(float(np.sum(w * (c[:, j] * np.exp(1j * k * tau)).real)))
 
         i = int(np.argmax(np.abs(fine[:, j])))
         h = 2 * np.pi / (16 * M)
-        res = minimize_scalar(value, bounds=((i - 1) * h, (i + 1) * h), method="bounded",
-                              options={"xatol": 1e-14})
+        res = minimize_scalar(
+            value, bounds=((i - 1) * h, (i + 1) * h), method="bounded", options={"xatol": 1e-14}
+        )
         out.append(-res.fun)
     return np.array(out)
 
@@ -88,8 +95,12 @@ def test_exactly_one_hopf_point_from_minus_three_to_five():
     """Check the equilibrium branch over mu in [-3, 5]: one Hopf point, at 0 (1e-10), with
     omega 1 and l1 < 0; the real-eigenvalue collision at mu = 1 is not a Hopf point."""
     s = get_system("vanderpol")
-    eq = equilibria(s, "mu", start=-3.0, options=ContinuationOptions(
-        ds=0.1, ds_max=0.2, p_min=-3.0, p_max=5.0, max_steps=500))
+    eq = equilibria(
+        s,
+        "mu",
+        start=-3.0,
+        options=ContinuationOptions(ds=0.1, ds_max=0.2, p_min=-3.0, p_max=5.0, max_steps=500),
+    )
     (h,) = eq.special("hopf")
     assert abs(h.param) < 1e-10 and h.data["omega"] == pytest.approx(1.0, abs=1e-10)
     assert h.data["lyapunov"] < 0 and h.data["criticality"] == "supercritical"
@@ -125,8 +136,9 @@ def test_planar_branch_has_no_secondary_points(vdp):
     assert not [sp for sp in br.special_points if sp.kind in ("period_doubling", "torus")]
     assert not [c for c in br.candidates if c.kind in ("period_doubling", "torus")]
     fl = br.data["floquet"][1:]
-    nontrivial = np.take_along_axis(fl, np.argmax(np.abs(np.abs(fl) - 1), axis=1)[:, None],
-                                    axis=1)[:, 0]
+    nontrivial = np.take_along_axis(fl, np.argmax(np.abs(np.abs(fl) - 1), axis=1)[:, None], axis=1)[
+        :, 0
+    ]
     assert np.all(nontrivial.real > 0) and np.all(nontrivial.imag == 0)
 
 

@@ -33,8 +33,14 @@ def _verify_test_zero(point, context):
 
 
 def _point(param: float) -> SpecialPoint:
-    return SpecialPoint(kind="test_zero", param=param, index=-1, bracket=(param, param),
-                        solution=np.zeros(1), precision=1e-12)
+    return SpecialPoint(
+        kind="test_zero",
+        param=param,
+        index=-1,
+        bracket=(param, param),
+        solution=np.zeros(1),
+        precision=1e-12,
+    )
 
 
 def test_confirm_returns_a_verified_point_or_a_candidate_with_the_reason():
@@ -79,13 +85,18 @@ def test_only_verified_points_enter_the_located_list():
 def _ab_field(u, p):
     # AUTO-07p demo "ab" (demos/ab/ab.f90): Da = p[0], B = p[1], beta = p[2]
     e = jnp.exp(u[1])
-    return jnp.stack([-u[0] + p[0] * (1 - u[0]) * e,
-                      -u[1] + p[0] * p[1] * (1 - u[0]) * e - p[2] * u[1]])
+    return jnp.stack(
+        [-u[0] + p[0] * (1 - u[0]) * e, -u[1] + p[0] * p[1] * (1 - u[0]) * e - p[2] * u[1]]
+    )
 
 
-AB = System(name="ab_test", states=("u1", "u2"),
-            parameters=(Parameter("Da", 0.0), Parameter("B", 8.0), Parameter("beta", 3.0)),
-            field=_ab_field, default_param="Da")
+AB = System(
+    name="ab_test",
+    states=("u1", "u2"),
+    parameters=(Parameter("Da", 0.0), Parameter("B", 8.0), Parameter("beta", 3.0)),
+    field=_ab_field,
+    default_param="Da",
+)
 
 
 def _ab_exact(B: float, beta: float = 3.0):
@@ -106,8 +117,9 @@ def test_ab_reports_exactly_the_hopf_points_and_folds_of_the_closed_form(B):
     """Check ab (AUTO demo) in Da over [0, 0.25]: every Hopf point and fold to 1e-9, no
     other located point and no candidate (the spurious omega ~ 0 Hopf points at folds and
     real-eigenvalue collisions are gone)."""
-    opts = ContinuationOptions(ds=0.005, ds_max=0.0125, ds_min=1e-10, p_min=0.0, p_max=0.25,
-                               max_steps=2000)
+    opts = ContinuationOptions(
+        ds=0.005, ds_max=0.0125, ds_min=1e-10, p_min=0.0, p_max=0.25, max_steps=2000
+    )
     eq = equilibria(AB, "Da", p=AB.param_vector(B=B), start=0.0, options=opts)
     hopf, folds = _ab_exact(B)
     got_h = sorted(sp.param for sp in eq.special("hopf"))
@@ -130,8 +142,9 @@ def test_locate_hopf_at_a_fold_is_refused_not_reported():
     B = 18.0
     _, folds = _ab_exact(B)  # the first fold has u1 = 2/3, u2 = B u1 / (1 + beta) = 3
     with pytest.raises(ConvergenceError, match="not verified: omega = 0"):
-        locate_hopf(AB, "Da", np.array([2.0 / 3.0, 3.0]), folds[0], AB.param_vector(B=B),
-                    omega_guess=1e-9)
+        locate_hopf(
+            AB, "Da", np.array([2.0 / 3.0, 3.0]), folds[0], AB.param_vector(B=B), omega_guess=1e-9
+        )
 
 
 def test_first_lyapunov_coefficient_undefined_at_a_zero_eigenvalue():
@@ -164,10 +177,19 @@ def _plp_field(u, p):
     return jnp.stack([(p[0] - u[0]) - p[3] * r, p[2] * (p[1] - u[1]) - p[3] * r])
 
 
-PLP = System(name="plp_test", states=("s", "a"),
-             parameters=(Parameter("s0", 110.0), Parameter("a0", 500.0), Parameter("alpha", 0.2),
-                         Parameter("rho", 2.021628), Parameter("kappa", 0.1)),
-             field=_plp_field, default_param="rho")
+PLP = System(
+    name="plp_test",
+    states=("s", "a"),
+    parameters=(
+        Parameter("s0", 110.0),
+        Parameter("a0", 500.0),
+        Parameter("alpha", 0.2),
+        Parameter("rho", 2.021628),
+        Parameter("kappa", 0.1),
+    ),
+    field=_plp_field,
+    default_param="rho",
+)
 
 
 def test_tolerances_scale_with_the_state_plp():
@@ -183,21 +205,35 @@ def test_tolerances_scale_with_the_state_plp():
 
 def _pp2_field(u, p):
     # AUTO-07p demo "pp2" (demos/pp2/pp2.f90): quota = p[0]
-    return jnp.stack([p[1] * u[0] * (1 - u[0]) - u[0] * u[1] - p[0] * (1 - jnp.exp(-p[2] * u[0])),
-                      -u[1] + p[3] * u[0] * u[1]])
+    return jnp.stack(
+        [
+            p[1] * u[0] * (1 - u[0]) - u[0] * u[1] - p[0] * (1 - jnp.exp(-p[2] * u[0])),
+            -u[1] + p[3] * u[0] * u[1],
+        ]
+    )
 
 
-PP2 = System(name="pp2_test", states=("fish", "sharks"),
-             parameters=(Parameter("quota", 0.0), Parameter("r", 3.0), Parameter("k", 5.0),
-                         Parameter("c", 3.0)), field=_pp2_field, default_param="quota")
+PP2 = System(
+    name="pp2_test",
+    states=("fish", "sharks"),
+    parameters=(
+        Parameter("quota", 0.0),
+        Parameter("r", 3.0),
+        Parameter("k", 5.0),
+        Parameter("c", 3.0),
+    ),
+    field=_pp2_field,
+    default_param="quota",
+)
 
 
 def test_branch_approaching_a_bound_asymptotically_ends_there():
     """Check pp2 without sharks from fish = 1: the fold (AUTO 0.832929), the branch points
     (AUTO 0.821904, 0.6) as candidates only, and the branch ends at the bound 0 that it
     approaches only as fish -> -inf (status "range", never a parameter of 1e-209)."""
-    opts = ContinuationOptions(ds=0.02, ds_max=0.05, ds_min=1e-9, p_min=0.0, p_max=1.0,
-                               max_steps=3000)
+    opts = ContinuationOptions(
+        ds=0.02, ds_max=0.05, ds_min=1e-9, p_min=0.0, p_max=1.0, max_steps=3000
+    )
     eq = equilibria(PP2, "quota", x0=np.array([1.0, 0.0]), options=opts)
     assert eq.status == "range" and 0.0 <= eq.params[-1] <= 1e-8
     (fold,) = eq.special("fold")
@@ -226,7 +262,12 @@ def test_a_field_that_fails_or_has_the_wrong_shape_is_an_input_error():
         return jnp.stack([x[0], x[1], p[0]])
 
     for field, needle in ((raising, "fails at x0"), (too_long, "must return 2 values")):
-        s = System(name="bad", states=("a", "b"), parameters=(Parameter("k", 1.0),),
-                   field=field, default_param="k")
+        s = System(
+            name="bad",
+            states=("a", "b"),
+            parameters=(Parameter("k", 1.0),),
+            field=field,
+            default_param="k",
+        )
         with pytest.raises(BifidInputError, match=needle):
             equilibria(s, "k", options=ContinuationOptions(p_min=0.0, p_max=2.0))

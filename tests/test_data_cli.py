@@ -57,8 +57,9 @@ def csv_file(tmp_path: Path) -> Path:
     return p
 
 
-def test_import_csv_json(csv_file: Path, tmp_path: Path,
-                         capsys: pytest.CaptureFixture[str]) -> None:
+def test_import_csv_json(
+    csv_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     out_nc = tmp_path / "out.nc"
     before = csv_file.read_bytes()
     code, out, err = run(["import", str(csv_file), "--out", str(out_nc), "--json"], capsys)
@@ -66,12 +67,22 @@ def test_import_csv_json(csv_file: Path, tmp_path: Path,
     assert len(out.strip().splitlines()) == 1
     payload = json.loads(out)
     assert payload["records"] == [
-        {"param": 14.9, "stable": True, "n_samples": 3, "sample_rate": pytest.approx(100.0),
-         "frequency": payload["records"][0]["frequency"],
-         "amplitude": {"h": 0.02}},
-        {"param": 15.5, "stable": False, "n_samples": 2, "sample_rate": pytest.approx(100.0),
-         "frequency": payload["records"][1]["frequency"],
-         "amplitude": {"h": 0.01}},
+        {
+            "param": 14.9,
+            "stable": True,
+            "n_samples": 3,
+            "sample_rate": pytest.approx(100.0),
+            "frequency": payload["records"][0]["frequency"],
+            "amplitude": {"h": 0.02},
+        },
+        {
+            "param": 15.5,
+            "stable": False,
+            "n_samples": 2,
+            "sample_rate": pytest.approx(100.0),
+            "frequency": payload["records"][1]["frequency"],
+            "amplitude": {"h": 0.01},
+        },
     ]
     assert payload["source"] == [str(csv_file)] and payload["kind"] == "lco"
     assert payload["settings"]["command"] == "import"
@@ -84,8 +95,9 @@ def test_import_csv_json(csv_file: Path, tmp_path: Path,
     assert code == 0 and "2 lco records" in out
 
 
-def test_import_user_errors(csv_file: Path, tmp_path: Path,
-                            capsys: pytest.CaptureFixture[str]) -> None:
+def test_import_user_errors(
+    csv_file: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     before = hashlib.sha256(csv_file.read_bytes()).hexdigest()
     bad = tmp_path / "bad.csv"
     bad.write_text("record,param,stable,time,h\n0,1,1,0,zzz\n")
@@ -111,11 +123,15 @@ def test_import_user_errors(csv_file: Path, tmp_path: Path,
 _FORMATS = ["auto", "csv", "flutter-cbc", "em-scurve", "netcdf", "", "CSV", "a b", "--json"]
 
 
-@settings(max_examples=30, deadline=None,
-          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@settings(
+    max_examples=30,
+    deadline=None,
+    suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow],
+)
 @given(data=st.data())
-def test_cli_argv_property(tmp_path: Path, csv_file: Path, capsys: pytest.CaptureFixture[str],
-                           data: st.DataObject) -> None:
+def test_cli_argv_property(
+    tmp_path: Path, csv_file: Path, capsys: pytest.CaptureFixture[str], data: st.DataObject
+) -> None:
     junk = tmp_path / "junk.csv"
     junk.write_bytes(data.draw(st.binary(max_size=64), label="junk"))
     # start from a valid command line, then break 0-2 parts of it
@@ -125,11 +141,26 @@ def test_cli_argv_property(tmp_path: Path, csv_file: Path, capsys: pytest.Captur
     for _ in range(data.draw(st.integers(0, 2), label="n_breaks")):
         part = data.draw(st.sampled_from(["inputs", "out", "format"]), label="break")
         if part == "inputs":
-            inputs = data.draw(st.lists(st.sampled_from(
-                [str(csv_file), str(junk), str(tmp_path / "no"), str(tmp_path)]), max_size=3))
+            inputs = data.draw(
+                st.lists(
+                    st.sampled_from(
+                        [str(csv_file), str(junk), str(tmp_path / "no"), str(tmp_path)]
+                    ),
+                    max_size=3,
+                )
+            )
         elif part == "out":
-            out_path = data.draw(st.sampled_from([
-                None, str(tmp_path / "nodir" / "x.nc"), str(tmp_path), str(csv_file), str(junk)]))
+            out_path = data.draw(
+                st.sampled_from(
+                    [
+                        None,
+                        str(tmp_path / "nodir" / "x.nc"),
+                        str(tmp_path),
+                        str(csv_file),
+                        str(junk),
+                    ]
+                )
+            )
         else:
             fmt = data.draw(st.sampled_from(_FORMATS))
     argv = ["import", *inputs]
@@ -141,8 +172,9 @@ def test_cli_argv_property(tmp_path: Path, csv_file: Path, capsys: pytest.Captur
     if json_out:
         argv.append("--json")
     # inputs are never modified (an existing non-input --out file may be replaced)
-    hashes = {p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (csv_file, junk)
-              if str(p) in inputs}
+    hashes = {
+        p: hashlib.sha256(p.read_bytes()).hexdigest() for p in (csv_file, junk) if str(p) in inputs
+    }
     N_TRIED["cli argv"] += 1
     code, out, err = run(argv, capsys)
     N_TRIED[f"exit {code}"] = N_TRIED.get(f"exit {code}", 0) + 1
@@ -162,26 +194,36 @@ def test_import_real_data_subprocess(shared_data: Path, tmp_path: Path) -> None:
     d = shared_data / "flutter_rig" / "cbc_model1"
     files = [d / "CBC_stable_v14_9.mat", d / "CBC_unstable_v15_6_2.mat"]
     out_nc = tmp_path / "m1.nc"
-    cmd = [sys.executable, "-c", "from bifid.cli import main; main()", "import",
-           *map(str, files), "--out", str(out_nc), "--json"]
+    cmd = [
+        sys.executable,
+        "-c",
+        "from bifid.cli import main; main()",
+        "import",
+        *map(str, files),
+        "--out",
+        str(out_nc),
+        "--json",
+    ]
     proc = subprocess.run(cmd, capture_output=True, text=True, timeout=300, check=False)
     assert proc.returncode == 0, proc.stderr
     payload = json.loads(proc.stdout)
     assert [r["param"] for r in payload["records"]] == [14.9, 16.4]  # Wind_sped, not names
     assert [r["stable"] for r in payload["records"]] == [True, False]
-    assert all(r["n_samples"] == 100000 and r["sample_rate"] == 5000.0
-               for r in payload["records"])
+    assert all(r["n_samples"] == 100000 and r["sample_rate"] == 5000.0 for r in payload["records"])
     assert payload["source"] == [str(f) for f in files]
     assert load_dataset(out_nc).sizes["record"] == 2
 
 
-def test_import_real_non_lco_files(shared_data: Path, tmp_path: Path,
-                                   capsys: pytest.CaptureFixture[str]) -> None:
+def test_import_real_non_lco_files(
+    shared_data: Path, tmp_path: Path, capsys: pytest.CaptureFixture[str]
+) -> None:
     fr = shared_data / "flutter_rig"
-    for path, hint in [(fr / "free_decay", "load_free_decay"),
-                       (fr / "ulco_amplitudes", "load_ulco_amplitudes"),
-                       (fr / "thesis_curves", "load_thesis_curves"),
-                       (fr / "cbc_model1" / "CBC_stable_v14_9.mat", "different formats")]:
+    for path, hint in [
+        (fr / "free_decay", "load_free_decay"),
+        (fr / "ulco_amplitudes", "load_ulco_amplitudes"),
+        (fr / "thesis_curves", "load_thesis_curves"),
+        (fr / "cbc_model1" / "CBC_stable_v14_9.mat", "different formats"),
+    ]:
         argv = ["import", str(path), "--out", str(tmp_path / "x.nc"), "--json"]
         if hint == "different formats":
             argv.insert(2, str(shared_data / "em_oscillator" / "backbone_1.mat"))

@@ -42,23 +42,45 @@ W = 2 * np.pi * 3.0  # 3 Hz
 def _lco(param: float, n: int, amp: float = 1.0, stable: bool | None = True) -> LCORecord:
     t = np.arange(n) / FS
     sig = np.stack([amp * np.sin(W * t), 0.5 * amp * np.cos(W * t + 0.3)], axis=1)
-    return LCORecord(param=param, signals=sig, sample_rate=FS, stable=stable,
-                     control=0.1 * np.sin(W * t), target=amp * np.sin(W * t), frequency=W,
-                     extra={"err": param / 10, "file": f"run{param}"})
+    return LCORecord(
+        param=param,
+        signals=sig,
+        sample_rate=FS,
+        stable=stable,
+        control=0.1 * np.sin(W * t),
+        target=amp * np.sin(W * t),
+        frequency=W,
+        extra={"err": param / 10, "file": f"run{param}"},
+    )
 
 
 def _forced(omega: float, lag: float, n: int = 2000, curve: int = 0) -> ForcedRecord:
     t = np.arange(n) / FS
-    return ForcedRecord(omega=omega, forcing=0.2, signals=np.cos(omega * t - lag)[:, None],
-                        sample_rate=FS, force=0.2 * np.cos(omega * t), curve=curve)
+    return ForcedRecord(
+        omega=omega,
+        forcing=0.2,
+        signals=np.cos(omega * t - lag)[:, None],
+        sample_rate=FS,
+        force=0.2 * np.cos(omega * t),
+        curve=curve,
+    )
 
 
 def _lco_ds(n_records: int = 3) -> xr.Dataset:
-    recs = [_lco(10.0 + i, 900 + 50 * i, amp=1.0 + i, stable=[True, False, None][i % 3])
-            for i in range(n_records)]
-    return lco_dataset(recs, ["h", "alpha"], "U", "m/s", system="flutter",
-                       settings={"seed": 1, "arr": np.arange(3)}, source="unit test",
-                       signal_units={"h": "m", "alpha": "rad"})
+    recs = [
+        _lco(10.0 + i, 900 + 50 * i, amp=1.0 + i, stable=[True, False, None][i % 3])
+        for i in range(n_records)
+    ]
+    return lco_dataset(
+        recs,
+        ["h", "alpha"],
+        "U",
+        "m/s",
+        system="flutter",
+        settings={"seed": 1, "arr": np.arange(3)},
+        source="unit test",
+        signal_units={"h": "m", "alpha": "rad"},
+    )
 
 
 # --------------------------------------------------------------------------- records
@@ -128,8 +150,17 @@ def test_lco_dataset_schema_and_derived_values() -> None:
 
 def test_forced_dataset_amplitude_and_phase() -> None:
     recs = [_forced(2 * np.pi * 5, lag) for lag in (0.1, 1.5, 3.0)]
-    recs.append(ForcedRecord(omega=10.0, forcing=0.1, signals=np.ones((50, 1)), sample_rate=FS,
-                             amplitude=0.25, phase=1.0, curve=3))
+    recs.append(
+        ForcedRecord(
+            omega=10.0,
+            forcing=0.1,
+            signals=np.ones((50, 1)),
+            sample_rate=FS,
+            amplitude=0.25,
+            phase=1.0,
+            curve=3,
+        )
+    )
     ds = forced_dataset(recs, ["x"], forcing_units="N")
     np.testing.assert_allclose(ds["phase"].values, [0.1, 1.5, 3.0, 1.0], atol=1e-9)
     # sampled max of cos: within 1 - cos(omega / (2 fs)) = 1.2e-4 of 1
@@ -162,8 +193,19 @@ def test_save_load_round_trip(tmp_path: Path) -> None:
     ds = _lco_ds()
     path = save_dataset(ds, tmp_path / "d.nc")
     back = load_dataset(path)
-    for name in ("signals", "control", "target", "param", "amplitude", "frequency",
-                 "n_samples", "stable", "sample_rate", "control_rms", "extra_err"):
+    for name in (
+        "signals",
+        "control",
+        "target",
+        "param",
+        "amplitude",
+        "frequency",
+        "n_samples",
+        "stable",
+        "sample_rate",
+        "control_rms",
+        "extra_err",
+    ):
         np.testing.assert_array_equal(back[name].values, ds[name].values)
     assert list(back["extra_file"].values) == ["run10.0", "run11.0", "run12.0"]
     assert back.attrs["source"] == "unit test"
@@ -191,8 +233,14 @@ def test_append_record(tmp_path: Path) -> None:
         append_record(path, _lco(1.0, 100))
     assert not path.exists()
     for i in range(2):
-        ds = append_record(path, _lco(1.0 + i, 100 + 10 * i), signal_names=["h", "alpha"],
-                           param_name="U", param_units="m/s", settings={"protocol": "ppcbc"})
+        ds = append_record(
+            path,
+            _lco(1.0 + i, 100 + 10 * i),
+            signal_names=["h", "alpha"],
+            param_name="U",
+            param_units="m/s",
+            settings={"protocol": "ppcbc"},
+        )
     np.testing.assert_array_equal(ds["param"].values, [1.0, 2.0])
     ds = load_dataset(path)
     np.testing.assert_array_equal(ds["param"].values, [1.0, 2.0])
@@ -339,11 +387,19 @@ def test_append_record_is_atomic(tmp_path: Path, monkeypatch: pytest.MonkeyPatch
 
 
 def test_model_round_trip(tmp_path: Path) -> None:
-    arrays = {"w": np.linspace(0, 1, 7), "k": np.eye(3), "flags": np.array([True, False]),
-              "z": np.array([1 + 2j])}
-    d = save_model(tmp_path / "m", "hopf_hybrid", {"mu0": np.float64(17.9), "n": 3,
-                                                     "names": ("a", "b"), "bad": float("nan")},
-                   arrays, settings={"data": ["a.nc"]})
+    arrays = {
+        "w": np.linspace(0, 1, 7),
+        "k": np.eye(3),
+        "flags": np.array([True, False]),
+        "z": np.array([1 + 2j]),
+    }
+    d = save_model(
+        tmp_path / "m",
+        "hopf_hybrid",
+        {"mu0": np.float64(17.9), "n": 3, "names": ("a", "b"), "bad": float("nan")},
+        arrays,
+        settings={"data": ["a.nc"]},
+    )
     meta, back = load_model(d)
     assert meta["type"] == "hopf_hybrid"
     assert meta["params"]["mu0"] == 17.9 and meta["params"]["names"] == ["a", "b"]
@@ -389,8 +445,9 @@ def test_model_tampering_and_malformed(tmp_path: Path) -> None:
     (d / "model.json").write_text("{broken")
     with pytest.raises(BifidInputError, match="not valid JSON"):
         load_model(d)
-    (d / "model.json").write_text(json.dumps({"format": "bifid-model", "format_version": 99,
-                                              "type": "x"}))
+    (d / "model.json").write_text(
+        json.dumps({"format": "bifid-model", "format_version": 99, "type": "x"})
+    )
     with pytest.raises(BifidInputError, match="format_version"):
         load_model(d)
     with pytest.raises(BifidInputError, match="not a directory"):

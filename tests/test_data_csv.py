@@ -61,10 +61,18 @@ def test_documented_example(tmp_path: Path) -> None:
 
 def test_lco_round_trip(tmp_path: Path) -> None:
     rng = np.random.default_rng(0)
-    recs = [LCORecord(param=10 + i, signals=rng.normal(size=(50 + 7 * i, 2)), sample_rate=200.0,
-                      stable=[True, False, None][i], control=rng.normal(size=50 + 7 * i),
-                      target=rng.normal(size=50 + 7 * i), frequency=3.0 + i)
-            for i in range(3)]
+    recs = [
+        LCORecord(
+            param=10 + i,
+            signals=rng.normal(size=(50 + 7 * i, 2)),
+            sample_rate=200.0,
+            stable=[True, False, None][i],
+            control=rng.normal(size=50 + 7 * i),
+            target=rng.normal(size=50 + 7 * i),
+            frequency=3.0 + i,
+        )
+        for i in range(3)
+    ]
     ds = lco_dataset(recs, ["h", "alpha"], "U", "m/s", signal_units={"h": "m"})
     back = read_csv_dataset(write_csv(ds, tmp_path / "x.csv"))
     for a, b in zip(lco_records(ds), lco_records(back), strict=True):
@@ -78,17 +86,30 @@ def test_lco_round_trip(tmp_path: Path) -> None:
 
 def test_forced_round_trip(tmp_path: Path) -> None:
     t = np.arange(400) / 1000.0
-    recs = [ForcedRecord(omega=60.0, forcing=0.1 * (i + 1), sample_rate=1000.0,
-                         signals=np.stack([np.cos(60 * t - 0.4 * i), np.sin(60 * t)], axis=1),
-                         force=np.cos(60 * t), curve=i // 2) for i in range(4)]
+    recs = [
+        ForcedRecord(
+            omega=60.0,
+            forcing=0.1 * (i + 1),
+            sample_rate=1000.0,
+            signals=np.stack([np.cos(60 * t - 0.4 * i), np.sin(60 * t)], axis=1),
+            force=np.cos(60 * t),
+            curve=i // 2,
+        )
+        for i in range(4)
+    ]
     ds = forced_dataset(recs, ["x1", "x2"], observed="x1", forcing_units="N")
     back = read_csv_dataset(write_csv(ds, tmp_path / "f.csv"))
     assert back.attrs["observed"] == "x1" and back.attrs["forcing_units"] == "N"
     for a, b in zip(forced_records(ds), forced_records(back), strict=True):
         np.testing.assert_array_equal(a.signals, b.signals)
         np.testing.assert_array_equal(a.force, b.force)
-        assert (a.omega, a.forcing, a.curve, a.amplitude, a.phase) == \
-            (b.omega, b.forcing, b.curve, b.amplitude, b.phase)
+        assert (a.omega, a.forcing, a.curve, a.amplitude, a.phase) == (
+            b.omega,
+            b.forcing,
+            b.curve,
+            b.amplitude,
+            b.phase,
+        )
 
 
 def test_frequency_estimated_when_absent(tmp_path: Path) -> None:

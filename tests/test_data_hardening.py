@@ -84,17 +84,34 @@ def work(tmp_path_factory: pytest.TempPathFactory) -> Path:
 def _valid_lco() -> xr.Dataset:
     t = np.arange(64) / 100.0
     sig = np.stack([np.sin(3 * t), np.cos(3 * t)], 1)
-    recs = [LCORecord(param=1.0 + i, signals=sig[: 40 + 8 * i],
-                      sample_rate=100.0, stable=bool(i % 2), frequency=3.0,
-                      control=0.1 * np.ones(40 + 8 * i), extra={"e": float(i), "f": "s"})
-            for i in range(3)]
+    recs = [
+        LCORecord(
+            param=1.0 + i,
+            signals=sig[: 40 + 8 * i],
+            sample_rate=100.0,
+            stable=bool(i % 2),
+            frequency=3.0,
+            control=0.1 * np.ones(40 + 8 * i),
+            extra={"e": float(i), "f": "s"},
+        )
+        for i in range(3)
+    ]
     return lco_dataset(recs, ["h", "alpha"], "U", "m/s", source="hardening")
 
 
 def _valid_forced() -> xr.Dataset:
     t = np.arange(50) / 100.0
-    recs = [FR(omega=6.0, forcing=0.1 * (i + 1), signals=np.cos(6 * t - i)[:, None],
-               sample_rate=100.0, force=np.cos(6 * t), curve=i) for i in range(2)]
+    recs = [
+        FR(
+            omega=6.0,
+            forcing=0.1 * (i + 1),
+            signals=np.cos(6 * t - i)[:, None],
+            sample_rate=100.0,
+            force=np.cos(6 * t),
+            curve=i,
+        )
+        for i in range(2)
+    ]
     return forced_dataset(recs, ["x"])
 
 
@@ -107,16 +124,35 @@ def valid_nc(work: Path) -> bytes:
 # 1. arbitrary bytes to every reader
 # ---------------------------------------------------------------------------------------------
 
-_PREFIXES = [b"", b"\x89HDF\r\n\x1a\n", b"MATLAB 5.0 MAT-file, Platform: GLNXA64" + b" " * 86,
-             b"record,param,stable,time,h\n", b"\x93NUMPY", b"PK\x03\x04", b"\x80\x04\x95"]
-_READERS = [load_dataset, read_flutter_cbc, load_free_decay, load_open_loop,
-            load_ulco_amplitudes, read_csv_dataset, load_thesis_curves, detect_format,
-            lambda p: read_em_curve(p), lambda p: import_files([p])]
+_PREFIXES = [
+    b"",
+    b"\x89HDF\r\n\x1a\n",
+    b"MATLAB 5.0 MAT-file, Platform: GLNXA64" + b" " * 86,
+    b"record,param,stable,time,h\n",
+    b"\x93NUMPY",
+    b"PK\x03\x04",
+    b"\x80\x04\x95",
+]
+_READERS = [
+    load_dataset,
+    read_flutter_cbc,
+    load_free_decay,
+    load_open_loop,
+    load_ulco_amplitudes,
+    read_csv_dataset,
+    load_thesis_curves,
+    detect_format,
+    lambda p: read_em_curve(p),
+    lambda p: import_files([p]),
+]
 
 
 @FAST
-@given(prefix=st.sampled_from(_PREFIXES), body=st.binary(max_size=2048),
-       suffix=st.sampled_from([".nc", ".mat", ".csv", ".txt", ""]))
+@given(
+    prefix=st.sampled_from(_PREFIXES),
+    body=st.binary(max_size=2048),
+    suffix=st.sampled_from([".nc", ".mat", ".csv", ".txt", ""]),
+)
 def test_random_bytes_every_reader(work: Path, prefix: bytes, body: bytes, suffix: str) -> None:
     path = work / f"rand{next(_ids)}{suffix}"
     path.write_bytes(prefix + body)
@@ -156,17 +192,41 @@ def test_corrupted_netcdf(work: Path, valid_nc: bytes, data: st.DataObject) -> N
 # 3. structurally wrong datasets (in memory, and a few through files)
 # ---------------------------------------------------------------------------------------------
 
-_NUMERIC = ["n_samples", "sample_rate", "stable", "signals", "control", "target", "control_rms",
-            "param", "frequency", "amplitude"]
+_NUMERIC = [
+    "n_samples",
+    "sample_rate",
+    "stable",
+    "signals",
+    "control",
+    "target",
+    "control_rms",
+    "param",
+    "frequency",
+    "amplitude",
+]
 _BAD_VALUES = [np.nan, np.inf, -np.inf, -1.0, 0.0, 1e308, 1e9, 0.5, -7.0]
 
 
 def _mutate(ds: xr.Dataset, data: st.DataObject) -> tuple[xr.Dataset, bool]:
     """Apply one random mutation; return the dataset and whether it MUST be rejected."""
     ds = ds.copy(deep=True)
-    kind = data.draw(st.sampled_from(["drop_var", "bad_value", "kind_attr", "drop_attr",
-                                      "json_attr", "transpose", "empty", "string_var",
-                                      "n_samples", "rename_dim"]), label="mutation")
+    kind = data.draw(
+        st.sampled_from(
+            [
+                "drop_var",
+                "bad_value",
+                "kind_attr",
+                "drop_attr",
+                "json_attr",
+                "transpose",
+                "empty",
+                "string_var",
+                "n_samples",
+                "rename_dim",
+            ]
+        ),
+        label="mutation",
+    )
     must_fail = False
     if kind == "drop_var":
         name = data.draw(st.sampled_from([*_NUMERIC, "signal"]), label="var")
@@ -181,12 +241,20 @@ def _mutate(ds: xr.Dataset, data: st.DataObject) -> tuple[xr.Dataset, bool]:
         ds[name] = (ds[name].dims, arr)
         n = int(ds["n_samples"].values[idx[0]]) if name != "n_samples" else None
         inside = name in ("signals", "control") and n is not None and idx[1] < n
-        must_fail = (not np.isfinite(value) and (inside or name in (
-            "sample_rate", "param", "control_rms", "amplitude", "n_samples", "stable"))) or (
-            name == "sample_rate" and value <= 0)
+        must_fail = (
+            not np.isfinite(value)
+            and (
+                inside
+                or name
+                in ("sample_rate", "param", "control_rms", "amplitude", "n_samples", "stable")
+            )
+        ) or (name == "sample_rate" and value <= 0)
     elif kind == "kind_attr":
-        value = data.draw(st.text(max_size=12) | st.sampled_from(
-            [np.array([1, 2]), np.array(["lco", "lco"]), 3, 1.5]), label="kind")
+        value = data.draw(
+            st.text(max_size=12)
+            | st.sampled_from([np.array([1, 2]), np.array(["lco", "lco"]), 3, 1.5]),
+            label="kind",
+        )
         ds.attrs["bifid_kind"] = value
         must_fail = not isinstance(value, str) or value not in KINDS or value == "forced"
         if "observed" in ds.attrs and data.draw(st.booleans(), label="observed too"):
@@ -197,7 +265,8 @@ def _mutate(ds: xr.Dataset, data: st.DataObject) -> tuple[xr.Dataset, bool]:
         must_fail = True
     elif kind == "json_attr":
         ds.attrs[data.draw(st.sampled_from(["settings", "signal_units"]))] = data.draw(
-            st.text(max_size=20), label="json")
+            st.text(max_size=20), label="json"
+        )
     elif kind == "transpose":
         ds["amplitude"] = (("signal", "record"), ds["amplitude"].values.T)
         must_fail = True
@@ -258,19 +327,37 @@ def test_structural_mutations_through_files(work: Path, data: st.DataObject) -> 
 # ---------------------------------------------------------------------------------------------
 
 _MAT_VALUES = st.one_of(
-    st.floats(allow_nan=True, allow_infinity=True), st.text(max_size=5),
-    st.just(np.array([])), st.just(np.full((5, 4), np.nan)), st.just(np.zeros((2, 3, 4))),
-    st.just(np.ones(7)), st.just(np.full((5, 300), 6.2832)), st.just({"a": 1.0}),
+    st.floats(allow_nan=True, allow_infinity=True),
+    st.text(max_size=5),
+    st.just(np.array([])),
+    st.just(np.full((5, 4), np.nan)),
+    st.just(np.zeros((2, 3, 4))),
+    st.just(np.ones(7)),
+    st.just(np.full((5, 300), 6.2832)),
+    st.just({"a": 1.0}),
 )
 
 
 def _cbc_dict(n: int = 300) -> dict[str, Any]:
     t = np.arange(n) / 5000.0
     w = 2 * np.pi * 2.45
-    data = np.stack([3.37 + 0.1 * np.sin(w * t), 3.37 + 0.1 * np.sin(w * t),
-                     0.01 * np.cos(w * t), 0.71 + 0.05 * np.sin(w * t + 1), np.full(n, 3.37)])
-    return {"data": data, "Wind_sped": 15.0, "freq_actual": 2.45, "amplitude": 0.1,
-            "error1": 0.01, "exp": {"par": {"sample_freq": 5000}}}
+    data = np.stack(
+        [
+            3.37 + 0.1 * np.sin(w * t),
+            3.37 + 0.1 * np.sin(w * t),
+            0.01 * np.cos(w * t),
+            0.71 + 0.05 * np.sin(w * t + 1),
+            np.full(n, 3.37),
+        ]
+    )
+    return {
+        "data": data,
+        "Wind_sped": 15.0,
+        "freq_actual": 2.45,
+        "amplitude": 0.1,
+        "error1": 0.01,
+        "exp": {"par": {"sample_freq": 5000}},
+    }
 
 
 @FAST
@@ -328,9 +415,16 @@ def _em_point(n: int = 200, f: float = 16.5) -> dict[str, Any]:
     w = 2 * np.pi * f
     coeffs = np.zeros(16)
     coeffs[9] = 0.3
-    return {"forcing_freq": f, "x": 0.2 + 0.3 * np.cos(w * t), "base_disp": 0.1 * np.cos(w * t),
-            "out": 0.01 * np.cos(w * t), "x_target": 0.2 + 0.3 * np.cos(w * t),
-            "x_coeffs_ave": coeffs, "base_coeffs_ave": coeffs * 0.3, "base_amp": 0.09}
+    return {
+        "forcing_freq": f,
+        "x": 0.2 + 0.3 * np.cos(w * t),
+        "base_disp": 0.1 * np.cos(w * t),
+        "out": 0.01 * np.cos(w * t),
+        "x_target": 0.2 + 0.3 * np.cos(w * t),
+        "x_coeffs_ave": coeffs,
+        "base_coeffs_ave": coeffs * 0.3,
+        "base_amp": 0.09,
+    }
 
 
 @FAST
@@ -347,9 +441,11 @@ def test_hostile_em_mat(work: Path, data: st.DataObject) -> None:
     cells = np.empty(len(points), dtype=object)
     for i, p in enumerate(points):
         cells[i] = p
-    exp: dict[str, Any] = {"name": data.draw(st.sampled_from(["cbc_backbone", "x", ""])),
-                           "data": cells, "par": {"sample_freq": data.draw(
-                               st.sampled_from([5000.0, 0.0, -1.0, np.nan]))}}
+    exp: dict[str, Any] = {
+        "name": data.draw(st.sampled_from(["cbc_backbone", "x", ""])),
+        "data": cells,
+        "par": {"sample_freq": data.draw(st.sampled_from([5000.0, 0.0, -1.0, np.nan]))},
+    }
     path = work / f"em{next(_ids)}.mat"
     try:
         scipy.io.savemat(path, {"exp": exp})
@@ -368,12 +464,27 @@ def test_hostile_em_mat(work: Path, data: st.DataObject) -> None:
 # 5. hostile CSV
 # ---------------------------------------------------------------------------------------------
 
-_COLS = ["record", "param", "stable", "time", "omega", "forcing", "h", "alpha", "control",
-         "target", "force", "curve", "frequency", "amplitude", "phase"]
+_COLS = [
+    "record",
+    "param",
+    "stable",
+    "time",
+    "omega",
+    "forcing",
+    "h",
+    "alpha",
+    "control",
+    "target",
+    "force",
+    "curve",
+    "frequency",
+    "amplitude",
+    "phase",
+]
 _CELLS = st.one_of(
     st.integers(-3, 3).map(str),
     st.floats(allow_nan=True, allow_infinity=True, width=32).map(repr),
-    st.sampled_from(["", " ", "nan", "inf", "-inf", "1e400", "0x1p3", "\"1\"", "a,b", "1;2"]),
+    st.sampled_from(["", " ", "nan", "inf", "-inf", "1e400", "0x1p3", '"1"', "a,b", "1;2"]),
     st.text(alphabet=st.characters(blacklist_categories=("Cs",)), max_size=6),
 )
 
@@ -381,8 +492,10 @@ _CELLS = st.one_of(
 @FAST
 @given(data=st.data())
 def test_hostile_csv(work: Path, data: st.DataObject) -> None:
-    header = data.draw(st.lists(st.sampled_from(_COLS) | st.text(max_size=4), min_size=0,
-                                max_size=9), label="header")
+    header = data.draw(
+        st.lists(st.sampled_from(_COLS) | st.text(max_size=4), min_size=0, max_size=9),
+        label="header",
+    )
     n_rows = data.draw(st.integers(0, 8), label="rows")
     lines = [",".join(header)]
     for _ in range(n_rows):
@@ -405,8 +518,10 @@ def _valid_csv_lines() -> list[str]:
     lines = ["# units: param=m/s, h=m", "record,param,stable,time,h,alpha,control,target"]
     for r in range(2):
         for k, tk in enumerate(t):
-            lines.append(f"{r},{14.0 + r},{r % 2},{float(tk)!r},{float(np.sin(3 * tk))!r},"
-                         f"{float(np.cos(tk))!r},0.1,{'' if k % 3 else 0.5}")
+            lines.append(
+                f"{r},{14.0 + r},{r % 2},{float(tk)!r},{float(np.sin(3 * tk))!r},"
+                f"{float(np.cos(tk))!r},0.1,{'' if k % 3 else 0.5}"
+            )
     return lines
 
 
@@ -423,8 +538,9 @@ def test_mutated_valid_csv(work: Path, data: st.DataObject) -> None:
     lines = _valid_csv_lines()
     for _ in range(data.draw(st.integers(1, 3), label="n_mutations")):
         i = data.draw(st.sampled_from(range(len(lines))), label="line")  # uniform
-        op = data.draw(st.sampled_from(["value", "value", "cell", "drop_cell", "dup", "delete",
-                                        "truncate"]))
+        op = data.draw(
+            st.sampled_from(["value", "value", "cell", "drop_cell", "dup", "delete", "truncate"])
+        )
         cells = lines[i].split(",")
         if op == "value" and i >= 2 and len(cells) == 8:  # a sample value, finite or not
             cells[data.draw(st.sampled_from([4, 5, 6, 7]))] = repr(data.draw(st.floats()))
@@ -441,7 +557,7 @@ def test_mutated_valid_csv(work: Path, data: st.DataObject) -> None:
             lines.pop(i)
         elif op == "truncate":
             lines[i] = lines[i][: data.draw(st.integers(0, len(lines[i])))]
-            del lines[i + 1:]
+            del lines[i + 1 :]
     path = work / f"m{next(_ids)}.csv"
     path.write_text("\n".join(lines) + "\n", encoding="utf-8", errors="surrogatepass")
     before = _sha(path)
@@ -452,8 +568,10 @@ def test_mutated_valid_csv(work: Path, data: st.DataObject) -> None:
 
 
 @FAST
-@given(times=st.lists(st.floats(-1e3, 1e3), min_size=2, max_size=6),
-       values=st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=6, max_size=6))
+@given(
+    times=st.lists(st.floats(-1e3, 1e3), min_size=2, max_size=6),
+    values=st.lists(st.floats(allow_nan=True, allow_infinity=True), min_size=6, max_size=6),
+)
 def test_csv_time_and_values(work: Path, times: list[float], values: list[float]) -> None:
     rows = [f"0,1.0,1,{t!r},{v!r}" for t, v in zip(times, values, strict=False)]
     path = work / f"tv{next(_ids)}.csv"
@@ -470,8 +588,9 @@ def test_csv_time_and_values(work: Path, times: list[float], values: list[float]
 
 _JSON = st.recursive(
     st.none() | st.booleans() | st.integers() | st.floats(allow_nan=False) | st.text(max_size=8),
-    lambda inner: st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner,
-                                                                 max_size=4),
+    lambda inner: (
+        st.lists(inner, max_size=4) | st.dictionaries(st.text(max_size=8), inner, max_size=4)
+    ),
     max_leaves=12,
 )
 
@@ -481,8 +600,12 @@ _JSON = st.recursive(
 def test_hostile_model_files(work: Path, data: st.DataObject) -> None:
     d = save_model(work / f"model{next(_ids)}", "kernel", {"a": 1.0}, {"w": np.arange(4.0)})
     meta = json.loads((d / "model.json").read_text())
-    what = data.draw(st.sampled_from(["json_random", "json_field", "json_bytes", "npz_bytes",
-                                      "npz_object", "delete"]), label="what")
+    what = data.draw(
+        st.sampled_from(
+            ["json_random", "json_field", "json_bytes", "npz_bytes", "npz_object", "delete"]
+        ),
+        label="what",
+    )
     if what == "json_random":
         (d / "model.json").write_text(json.dumps(data.draw(_JSON)))
     elif what == "json_field":
@@ -492,8 +615,9 @@ def test_hostile_model_files(work: Path, data: st.DataObject) -> None:
     elif what == "json_bytes":
         (d / "model.json").write_bytes(data.draw(st.binary(max_size=200)))
     elif what == "npz_bytes":
-        (d / "arrays.npz").write_bytes(data.draw(st.sampled_from(_PREFIXES))
-                                       + data.draw(st.binary(max_size=300)))
+        (d / "arrays.npz").write_bytes(
+            data.draw(st.sampled_from(_PREFIXES)) + data.draw(st.binary(max_size=300))
+        )
     elif what == "npz_object":
         buf = io.BytesIO()
         np.savez(buf, w=np.array([data.draw(_JSON), None], dtype=object))

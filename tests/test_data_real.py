@@ -46,8 +46,14 @@ def model1(shared_data: Path) -> xr.Dataset:
 @pytest.fixture(scope="module")
 def em(shared_data: Path) -> xr.Dataset:
     d = shared_data / "em_oscillator"
-    return import_files([d / "scurve_16p5Hz.mat", d / "scurve_16p6Hz.mat",
-                         d / "backbone_1.mat", d / "backbone_2.mat"])
+    return import_files(
+        [
+            d / "scurve_16p5Hz.mat",
+            d / "scurve_16p6Hz.mat",
+            d / "backbone_1.mat",
+            d / "backbone_2.mat",
+        ]
+    )
 
 
 def test_cbc_model1_records(model1: xr.Dataset) -> None:
@@ -56,8 +62,7 @@ def test_cbc_model1_records(model1: xr.Dataset) -> None:
     assert [str(s) for s in ds["signal"].values] == ["h", "alpha"]
     stable = ds["stable"].values == 1
     np.testing.assert_allclose(np.sort(ds["param"].values[stable]), [14.9, 15.6, 16.5, 17.3])
-    np.testing.assert_allclose(np.sort(ds["param"].values[~stable]),
-                               [14.9, 15.7, 16.4, 16.5, 17.2])
+    np.testing.assert_allclose(np.sort(ds["param"].values[~stable]), [14.9, 15.7, 16.4, 16.5, 17.2])
     np.testing.assert_array_equal(ds["sample_rate"].values, 5000.0)
     np.testing.assert_array_equal(ds["n_samples"].values, 100000)
     f_hz = ds["frequency"].values / (2 * np.pi)
@@ -88,8 +93,9 @@ def test_cbc_model1_against_raw_file_and_authors(model1: xr.Dataset, shared_data
         h = r.signals[:, 0]
         assert np.sqrt(np.mean((h - r.target) ** 2)) < 0.3 * np.sqrt(np.mean(h**2))
     # the authors' amplitude table (thesis Fig. 4.1) from the same runs, in file order
-    u = load_ulco_amplitudes(shared_data / "flutter_rig" / "ulco_amplitudes"
-                             / "ULCO_data_torsional_spring-1.mat")
+    u = load_ulco_amplitudes(
+        shared_data / "flutter_rig" / "ulco_amplitudes" / "ULCO_data_torsional_spring-1.mat"
+    )
     amp = model1["amplitude"].values
     st = model1["stable"].values == 1
     np.testing.assert_allclose(amp[st, 1], u.stable_pitch, rtol=2e-3)
@@ -112,8 +118,9 @@ def test_cbc_model2_pitch_wraps_cleaned(shared_data: Path, tmp_path: Path) -> No
         assert wrapped.sum() == ds["extra_pitch_wrapped_samples"].values[i] > 1000
         alpha = ds["signals"].values[i, : ds["n_samples"].values[i], 1]
         # untouched samples are the raw ones minus the offset; repaired ones stay in range
-        np.testing.assert_allclose(alpha[~wrapped] + ds["extra_pitch_offset_rad"].values[i],
-                                   raw[~wrapped])
+        np.testing.assert_allclose(
+            alpha[~wrapped] + ds["extra_pitch_offset_rad"].values[i], raw[~wrapped]
+        )
         good = raw[~wrapped]
         off = ds["extra_pitch_offset_rad"].values[i]
         assert alpha[wrapped].max() <= good.max() - off + 0.01
@@ -153,8 +160,9 @@ def test_em_scurves_and_backbones(em: xr.Dataset) -> None:
     # forcing = the file's base_amp on S-curves; agrees with |first harmonic| of the base
     sc = ~bb
     np.testing.assert_array_equal(em["forcing"].values[sc], em["extra_base_amp"].values[sc])
-    np.testing.assert_allclose(em["forcing"].values[sc], em["extra_base_h1"].values[sc],
-                               rtol=2e-3, atol=2e-4)
+    np.testing.assert_allclose(
+        em["forcing"].values[sc], em["extra_base_h1"].values[sc], rtol=2e-3, atol=2e-4
+    )
     # noise-free amplitude sits between the first harmonic and the raw max |x|
     assert np.all(amp[ok] >= 0.99 * em["extra_x_h1"].values[ok])
     assert np.all(amp[ok] <= 1.002 * em["extra_x_max_raw"].values[ok])
@@ -162,8 +170,9 @@ def test_em_scurves_and_backbones(em: xr.Dataset) -> None:
 
 def test_em_force_signal_and_records(em: xr.Dataset, shared_data: Path) -> None:
     recs = forced_records(em)
-    m = scipy.io.loadmat(shared_data / "em_oscillator" / "scurve_16p5Hz.mat",
-                         squeeze_me=True, struct_as_record=False)
+    m = scipy.io.loadmat(
+        shared_data / "em_oscillator" / "scurve_16p5Hz.mat", squeeze_me=True, struct_as_record=False
+    )
     p = m["exp"].data[30]
     r = recs[30]
     np.testing.assert_allclose(r.force, -(p.base_disp - p.base_disp.mean()))
@@ -188,8 +197,11 @@ def test_free_decay(shared_data: Path) -> None:
 
 def test_open_loop(shared_data: Path) -> None:
     d = shared_data / "flutter_rig" / "open_loop_2018"
-    files = [d / "17092018_CBC_V163_BackFromHB.mat", d / "17092018_CBC_V171_TowardsHB.mat",
-             d / "17092018_CBC_V241_Hammer.mat"]
+    files = [
+        d / "17092018_CBC_V163_BackFromHB.mat",
+        d / "17092018_CBC_V171_TowardsHB.mat",
+        d / "17092018_CBC_V241_Hammer.mat",
+    ]
     run = load_open_loop(files[0])
     raw = scipy.io.loadmat(files[0], squeeze_me=True)
     np.testing.assert_allclose(run.heave_mm, (raw["data"][1] - raw["data"][1].mean()) * 470)
@@ -216,8 +228,10 @@ def test_small_loaders_and_detection(shared_data: Path) -> None:
     assert np.isnan(u2.unstable_pitch).all() and u2.unstable_speed.shape == (8,)
     assert detect_format(fr / "cbc_model1" / "CBC_stable_v14_9.mat") == "flutter-cbc"
     assert detect_format(fr / "cbc_model2" / "CBC_v25_0.mat") == "flutter-cbc"
-    assert detect_format(fr / "open_loop_2018" / "17092018_CBC_V163_BackFromHB.mat") \
+    assert (
+        detect_format(fr / "open_loop_2018" / "17092018_CBC_V163_BackFromHB.mat")
         == "flutter-openloop"
+    )
     em = shared_data / "em_oscillator"
     assert detect_format(em / "scurve_16p5Hz.mat") == "em-scurve"
     assert detect_format(em / "backbone_2.mat") == "em-backbone"

@@ -51,21 +51,29 @@ def test_aligned_error_is_phase_free_and_exact():
     """Check the one-period error ignores a time shift and measures an amplitude error."""
     t = np.linspace(0, 2 * np.pi, 64, endpoint=False)
     truth = np.column_stack([np.cos(t), 0.3 * np.sin(t) + 0.1 * np.cos(2 * t)])
-    shifted = np.roll(np.column_stack([np.cos(np.linspace(0, 2 * np.pi, 256, endpoint=False)),
-                                       0.3 * np.sin(np.linspace(0, 2 * np.pi, 256,
-                                                                endpoint=False))
-                                       + 0.1 * np.cos(2 * np.linspace(0, 2 * np.pi, 256,
-                                                                      endpoint=False))]),
-                      37, axis=0)
+    shifted = np.roll(
+        np.column_stack(
+            [
+                np.cos(np.linspace(0, 2 * np.pi, 256, endpoint=False)),
+                0.3 * np.sin(np.linspace(0, 2 * np.pi, 256, endpoint=False))
+                + 0.1 * np.cos(2 * np.linspace(0, 2 * np.pi, 256, endpoint=False)),
+            ]
+        ),
+        37,
+        axis=0,
+    )
     assert _aligned_error(shifted, truth) < 1e-10  # resampled 64 -> 256 and shifted
     assert _aligned_error(1.05 * shifted, truth) == pytest.approx(0.05, rel=1e-9)
 
 
-@pytest.mark.parametrize("args,needle", [
-    (["demo", "banana"], "flutter"),
-    (["demo", "flutter", "--noise", "nan"], "--noise"),
-    (["demo", "flutter", "--noise", "0.9"], "--noise"),
-])
+@pytest.mark.parametrize(
+    "args,needle",
+    [
+        (["demo", "banana"], "flutter"),
+        (["demo", "flutter", "--noise", "nan"], "--noise"),
+        (["demo", "flutter", "--noise", "0.9"], "--noise"),
+    ],
+)
 def test_demo_bad_options_exit_2(args, needle, capsys, tmp_path):
     """Check bad demo options give one line on stderr and exit status 2."""
     f = tmp_path / "file"

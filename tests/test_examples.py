@@ -24,15 +24,27 @@ def _is_slow(path: Path) -> bool:
 
 @pytest.mark.parametrize(
     "script",
-    [pytest.param(p, id=p.relative_to(ROOT / "docs" / "examples").as_posix(),
-                  marks=[pytest.mark.slow] if _is_slow(p) else []) for p in EXAMPLES],
+    [
+        pytest.param(
+            p,
+            id=p.relative_to(ROOT / "docs" / "examples").as_posix(),
+            marks=[pytest.mark.slow] if _is_slow(p) else [],
+        )
+        for p in EXAMPLES
+    ],
 )
 def test_example_runs(script: Path, tmp_path: Path, shared_data: Path) -> None:
     """Check that the example exits with status 0 and writes nothing into the repository."""
     env = {**os.environ, "BIFID_EXAMPLE_OUT": str(tmp_path), "MPLBACKEND": "Agg"}
     before = {p: p.stat().st_mtime for p in (ROOT / "docs").rglob("*") if p.is_file()}
-    r = subprocess.run([sys.executable, str(script)], cwd=tmp_path, env=env,
-                       capture_output=True, text=True, timeout=1200)
+    r = subprocess.run(
+        [sys.executable, str(script)],
+        cwd=tmp_path,
+        env=env,
+        capture_output=True,
+        text=True,
+        timeout=1200,
+    )
     assert r.returncode == 0, r.stderr[-3000:]
     changed = [p for p, t in before.items() if p.exists() and p.stat().st_mtime != t]
     assert not changed, f"the example wrote into the repository: {changed}"

@@ -14,9 +14,20 @@ import pytest
 
 SRC = Path(__file__).resolve().parents[1] / "src" / "bifid"
 RANK = {
-    "errors": 0, "systems": 1, "io": 2, "signal": 2, "simulate": 2, "data": 3,
-    "continuation": 4, "cbc": 5, "identify": 6, "parallel": 6, "report": 7, "demo": 8,
-    "cli": 9, "__main__": 10,
+    "errors": 0,
+    "systems": 1,
+    "io": 2,
+    "signal": 2,
+    "simulate": 2,
+    "data": 3,
+    "continuation": 4,
+    "cbc": 5,
+    "identify": 6,
+    "parallel": 6,
+    "report": 7,
+    "demo": 8,
+    "cli": 9,
+    "__main__": 10,
 }
 
 
@@ -47,8 +58,9 @@ def _typing_only(tree: ast.AST) -> set[ast.AST]:
 
 def _imports(path: Path, runtime_only: bool = False) -> list[tuple[str, int]]:
     tree = ast.parse(path.read_text(), filename=str(path))
-    package = _module_name(path) if path.name == "__init__.py" else \
-        _module_name(path).rpartition(".")[0]
+    package = (
+        _module_name(path) if path.name == "__init__.py" else _module_name(path).rpartition(".")[0]
+    )
     skip = _typing_only(tree) if runtime_only else set()
     out = []
     for node in ast.walk(tree):
@@ -112,7 +124,7 @@ def test_no_import_cycles() -> None:
         stack.append(m)
         for t in sorted(graph[m]):
             if colour.get(t) == 1:
-                return stack[stack.index(t):] + [t]
+                return [*stack[stack.index(t) :], t]
             if colour.get(t) is None:
                 found = visit(t)
                 if found:

@@ -21,38 +21,76 @@ def field(x, p):
     d, alpha, beta, b, s = p[0], p[1], p[2], p[3], p[4]
     e = jnp.exp(x[2])
     x1c = 1 - x[0]
-    return jnp.stack([
-        -x[0] + d * x1c * e,
-        -x[1] + d * e * (x1c - s * x[1]),
-        -x[2] - beta * x[2] + d * b * e * (x1c + alpha * s * x[1]),
-    ])
+    return jnp.stack(
+        [
+            -x[0] + d * x1c * e,
+            -x[1] + d * e * (x1c - s * x[1]),
+            -x[2] - beta * x[2] + d * b * e * (x1c + alpha * s * x[1]),
+        ]
+    )
 
 
-register("abc", System(
-    name="abc", states=("x1", "x2", "x3"),
-    parameters=(Parameter("D", 0.0, "1", "Damkohler number, PAR(1)"),
-                Parameter("alpha", 1.0, "1", "PAR(2)"),
-                Parameter("beta", 1.55, "1", "PAR(3)"),
-                Parameter("B", 8.0, "1", "PAR(4)"),
-                Parameter("s", 0.04, "1", "PAR(5)")),
-    field=field, default_param="D", description="AUTO-07p demo abc (A -> B -> C reaction)",
-), overwrite=True)
+register(
+    "abc",
+    System(
+        name="abc",
+        states=("x1", "x2", "x3"),
+        parameters=(
+            Parameter("D", 0.0, "1", "Damkohler number, PAR(1)"),
+            Parameter("alpha", 1.0, "1", "PAR(2)"),
+            Parameter("beta", 1.55, "1", "PAR(3)"),
+            Parameter("B", 8.0, "1", "PAR(4)"),
+            Parameter("s", 0.04, "1", "PAR(5)"),
+        ),
+        field=field,
+        default_param="D",
+        description="AUTO-07p demo abc (A -> B -> C reaction)",
+    ),
+    overwrite=True,
+)
 
 _ORBIT = {"detect": ("cycle_fold",), "branch_points": (), "homoclinic": None}
 
 AUTO_RUNS = [
-    {"label": "D from 0 to 0.4", "param": "D", "range": (0.0, 0.4), "set": {}, "x0": None,
-     "detect": ("hopf", "fold", "branch_point"),
-     "hopf": (0.204185, 0.229836, 0.259957, 0.346208), "folds": (), "branch_points": (),
-     "orbits": [
-         {**_ORBIT, "hopf": 0.204185, "stop": {"param": (0.25,)},
-          "cycle_folds": ((0.213697, 7.61104), (0.211903, 8.28914)),
-          "points": ((0.250003, 6.53496),)},
-         {**_ORBIT, "hopf": 0.229836, "stop": {"param": (0.25,)},
-          "cycle_folds": ((0.224962, 6.52551),), "points": ((0.250001, 7.92732),)},
-         {**_ORBIT, "hopf": 0.259957, "stop": {"param": (0.25,)}, "cycle_folds": (),
-          "points": ((0.25, 7.92716),)},
-         {**_ORBIT, "hopf": 0.346208, "stop": {"param": (0.25,)}, "cycle_folds": (),
-          "points": ((0.249999, 6.53497),)},
-     ]},
+    {
+        "label": "D from 0 to 0.4",
+        "param": "D",
+        "range": (0.0, 0.4),
+        "set": {},
+        "x0": None,
+        "detect": ("hopf", "fold", "branch_point"),
+        "hopf": (0.204185, 0.229836, 0.259957, 0.346208),
+        "folds": (),
+        "branch_points": (),
+        "orbits": [
+            {
+                **_ORBIT,
+                "hopf": 0.204185,
+                "stop": {"param": (0.25,)},
+                "cycle_folds": ((0.213697, 7.61104), (0.211903, 8.28914)),
+                "points": ((0.250003, 6.53496),),
+            },
+            {
+                **_ORBIT,
+                "hopf": 0.229836,
+                "stop": {"param": (0.25,)},
+                "cycle_folds": ((0.224962, 6.52551),),
+                "points": ((0.250001, 7.92732),),
+            },
+            {
+                **_ORBIT,
+                "hopf": 0.259957,
+                "stop": {"param": (0.25,)},
+                "cycle_folds": (),
+                "points": ((0.25, 7.92716),),
+            },
+            {
+                **_ORBIT,
+                "hopf": 0.346208,
+                "stop": {"param": (0.25,)},
+                "cycle_folds": (),
+                "points": ((0.249999, 6.53497),),
+            },
+        ],
+    },
 ]

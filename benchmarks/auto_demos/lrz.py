@@ -22,30 +22,85 @@ def field(u, p):
     return jnp.stack([sigma * (y - x), rho * x - y - x * z, x * y - beta * z])
 
 
-register("lrz", System(
-    name="lrz", states=("x", "y", "z"),
-    parameters=(Parameter("rho", 0.0, "1", "PAR(1)"), Parameter("beta", 8.0 / 3.0, "1", "PAR(2)"),
-                Parameter("sigma", 10.0, "1", "PAR(3)")),
-    field=field, default_param="rho", description="AUTO-07p demo lrz (Lorenz equations)",
-), overwrite=True)
+register(
+    "lrz",
+    System(
+        name="lrz",
+        states=("x", "y", "z"),
+        parameters=(
+            Parameter("rho", 0.0, "1", "PAR(1)"),
+            Parameter("beta", 8.0 / 3.0, "1", "PAR(2)"),
+            Parameter("sigma", 10.0, "1", "PAR(3)"),
+        ),
+        field=field,
+        default_param="rho",
+        description="AUTO-07p demo lrz (Lorenz equations)",
+    ),
+    overwrite=True,
+)
 
 # the first periodic run's printed orbits (rho, PERIOD), every second step
-_POINTS = ((24.7263, 0.653196), (24.6221, 0.656815), (24.3598, 0.666114), (23.8815, 0.683815),
-           (23.1354, 0.713505), (22.0780, 0.760644), (20.6702, 0.835069), (18.8821, 0.957569),
-           (16.7353, 1.18330), (14.8138, 1.62929), (13.9678, 2.78130), (13.9266, 6.70329),
-           (13.9266, 12.6885), (13.9266, 34.1837))
-_ORBIT = {"hopf": 24.7368, "detect": ("period_doubling", "torus", "branch_point"),
-          "stop": {"max_period": 585.401}, "cycle_folds": (), "branch_points": (),
-          "points": _POINTS, "homoclinic": (13.9266, 585.401)}
+_POINTS = (
+    (24.7263, 0.653196),
+    (24.6221, 0.656815),
+    (24.3598, 0.666114),
+    (23.8815, 0.683815),
+    (23.1354, 0.713505),
+    (22.0780, 0.760644),
+    (20.6702, 0.835069),
+    (18.8821, 0.957569),
+    (16.7353, 1.18330),
+    (14.8138, 1.62929),
+    (13.9678, 2.78130),
+    (13.9266, 6.70329),
+    (13.9266, 12.6885),
+    (13.9266, 34.1837),
+)
+_ORBIT = {
+    "hopf": 24.7368,
+    "detect": ("period_doubling", "torus", "branch_point"),
+    "stop": {"max_period": 585.401},
+    "cycle_folds": (),
+    "branch_points": (),
+    "points": _POINTS,
+    "homoclinic": (13.9266, 585.401),
+}
 
 AUTO_RUNS = [
-    {"label": "trivial branch", "param": "rho", "range": (0.0, 30.0), "set": {}, "x0": None,
-     "detect": ("hopf", "branch_point"), "hopf": (), "folds": (), "branch_points": (1.0,),
-     "orbits": []},
-    {"label": "x > 0 branch", "param": "rho", "range": (30.0, 2.0), "set": {},
-     "x0": (8.79394, 8.79394, 29.0), "detect": ("hopf", "branch_point"),
-     "hopf": (24.7368,), "folds": (), "branch_points": (), "orbits": [_ORBIT]},
-    {"label": "x < 0 branch", "param": "rho", "range": (30.0, 2.0), "set": {},
-     "x0": (-8.79394, -8.79394, 29.0), "detect": ("hopf", "branch_point"),
-     "hopf": (24.7368,), "folds": (), "branch_points": (), "orbits": [_ORBIT]},
+    {
+        "label": "trivial branch",
+        "param": "rho",
+        "range": (0.0, 30.0),
+        "set": {},
+        "x0": None,
+        "detect": ("hopf", "branch_point"),
+        "hopf": (),
+        "folds": (),
+        "branch_points": (1.0,),
+        "orbits": [],
+    },
+    {
+        "label": "x > 0 branch",
+        "param": "rho",
+        "range": (30.0, 2.0),
+        "set": {},
+        "x0": (8.79394, 8.79394, 29.0),
+        "detect": ("hopf", "branch_point"),
+        "hopf": (24.7368,),
+        "folds": (),
+        "branch_points": (),
+        "orbits": [_ORBIT],
+    },
+    {
+        "label": "x < 0 branch",
+        "param": "rho",
+        "range": (30.0, 2.0),
+        "set": {},
+        "x0": (-8.79394, -8.79394, 29.0),
+        "detect": ("hopf", "branch_point"),
+        "hopf": (24.7368,),
+        "folds": (),
+        "branch_points": (),
+        "orbits": [_ORBIT],
+    },
 ]

@@ -23,25 +23,56 @@ def field(u, p):
     return jnp.stack([(s0 - s) - rho * r, alpha * (a0 - a) - rho * r])
 
 
-register("plp", System(
-    name="plp", states=("s", "a"),
-    parameters=(Parameter("s0", 110.0, "1", "PAR(1)"), Parameter("a0", 500.0, "1", "PAR(2)"),
-                Parameter("alpha", 0.2, "1", "PAR(3)"), Parameter("rho", 2.021628, "1", "PAR(4)"),
-                Parameter("kappa", 0.1, "1", "PAR(5)")),
-    field=field, default_param="rho", description="AUTO-07p demo plp",
-), overwrite=True)
+register(
+    "plp",
+    System(
+        name="plp",
+        states=("s", "a"),
+        parameters=(
+            Parameter("s0", 110.0, "1", "PAR(1)"),
+            Parameter("a0", 500.0, "1", "PAR(2)"),
+            Parameter("alpha", 0.2, "1", "PAR(3)"),
+            Parameter("rho", 2.021628, "1", "PAR(4)"),
+            Parameter("kappa", 0.1, "1", "PAR(5)"),
+        ),
+        field=field,
+        default_param="rho",
+        description="AUTO-07p demo plp",
+    ),
+    overwrite=True,
+)
 
-_ORBIT = {"detect": ("cycle_fold",), "stop": {"param": (4.0,)}, "branch_points": (),
-          "homoclinic": None}
+_ORBIT = {
+    "detect": ("cycle_fold",),
+    "stop": {"param": (4.0,)},
+    "branch_points": (),
+    "homoclinic": None,
+}
 
 AUTO_RUNS = [
-    {"label": "rho from 2.021628 to 6", "param": "rho", "range": (2.021628, 6.0), "set": {},
-     "x0": (45.55974, 177.7987), "detect": ("hopf", "fold", "branch_point"),
-     "hopf": (3.49995, 4.65046), "folds": (), "branch_points": (),
-     "orbits": [
-         {**_ORBIT, "hopf": 3.49995, "cycle_folds": ((2.75969, 10.0064),),
-          "points": ((4.0, 6.73966),)},
-         {**_ORBIT, "hopf": 4.65046, "cycle_folds": ((5.00784, 5.67658),),
-          "points": ((4.0, 6.73966),)},
-     ]},
+    {
+        "label": "rho from 2.021628 to 6",
+        "param": "rho",
+        "range": (2.021628, 6.0),
+        "set": {},
+        "x0": (45.55974, 177.7987),
+        "detect": ("hopf", "fold", "branch_point"),
+        "hopf": (3.49995, 4.65046),
+        "folds": (),
+        "branch_points": (),
+        "orbits": [
+            {
+                **_ORBIT,
+                "hopf": 3.49995,
+                "cycle_folds": ((2.75969, 10.0064),),
+                "points": ((4.0, 6.73966),),
+            },
+            {
+                **_ORBIT,
+                "hopf": 4.65046,
+                "cycle_folds": ((5.00784, 5.67658),),
+                "points": ((4.0, 6.73966),),
+            },
+        ],
+    },
 ]

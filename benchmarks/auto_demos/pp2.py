@@ -20,35 +20,91 @@ def field(u, p):
     """FUNC of pp2.f90."""
     quota, r, k, c = p[0], p[1], p[2], p[3]
     e = jnp.exp(-k * u[0])
-    return jnp.stack([r * u[0] * (1 - u[0]) - u[0] * u[1] - quota * (1 - e),
-                      -u[1] + c * u[0] * u[1]])
+    return jnp.stack(
+        [r * u[0] * (1 - u[0]) - u[0] * u[1] - quota * (1 - e), -u[1] + c * u[0] * u[1]]
+    )
 
 
-register("pp2", System(
-    name="pp2", states=("fish", "sharks"),
-    parameters=(Parameter("quota", 0.0, "1", "harvesting quota, PAR(1)"),
-                Parameter("r", 3.0, "1", "PAR(2)"), Parameter("k", 5.0, "1", "PAR(3)"),
-                Parameter("c", 3.0, "1", "PAR(4)")),
-    field=field, default_param="quota", description="AUTO-07p demo pp2 (predator-prey)",
-), overwrite=True)
+register(
+    "pp2",
+    System(
+        name="pp2",
+        states=("fish", "sharks"),
+        parameters=(
+            Parameter("quota", 0.0, "1", "harvesting quota, PAR(1)"),
+            Parameter("r", 3.0, "1", "PAR(2)"),
+            Parameter("k", 5.0, "1", "PAR(3)"),
+            Parameter("c", 3.0, "1", "PAR(4)"),
+        ),
+        field=field,
+        default_param="quota",
+        description="AUTO-07p demo pp2 (predator-prey)",
+    ),
+    overwrite=True,
+)
 
-_POINTS = ((0.671709, 10.4024), (0.672635, 10.5098), (0.674476, 10.7334), (0.677204, 11.0918),
-           (0.680756, 11.6162), (0.685012, 12.3547), (0.689760, 13.3795), (0.694676, 14.7957),
-           (0.699324, 16.7572), (0.703216, 19.4886), (0.705948, 23.3184), (0.707420, 28.7287),
-           (0.707941, 35.9999))
+_POINTS = (
+    (0.671709, 10.4024),
+    (0.672635, 10.5098),
+    (0.674476, 10.7334),
+    (0.677204, 11.0918),
+    (0.680756, 11.6162),
+    (0.685012, 12.3547),
+    (0.689760, 13.3795),
+    (0.694676, 14.7957),
+    (0.699324, 16.7572),
+    (0.703216, 19.4886),
+    (0.705948, 23.3184),
+    (0.707420, 28.7287),
+    (0.707941, 35.9999),
+)
 _DETECT = ("hopf", "fold", "branch_point")
 
 AUTO_RUNS = [
-    {"label": "no fish", "param": "quota", "range": (0.0, 1.0), "set": {}, "x0": None,
-     "detect": _DETECT, "hopf": (), "folds": (), "branch_points": (0.6,), "orbits": []},
-    {"label": "no sharks", "param": "quota", "range": (0.0, 1.0), "set": {}, "x0": (1.0, 0.0),
-     "detect": _DETECT, "hopf": (), "folds": (0.832929,), "branch_points": (0.821904, 0.6),
-     "orbits": []},
-    {"label": "fish = 1/3", "param": "quota", "range": (0.0, 1.0), "set": {},
-     "x0": (1.0 / 3.0, 2.0), "detect": _DETECT, "hopf": (0.671594,), "folds": (),
-     "branch_points": (0.821904,),
-     "orbits": [{"hopf": 0.671594, "detect": ("cycle_fold", "period_doubling", "torus",
-                                              "branch_point"),
-                 "stop": {"param": (0.0, 1.0), "period": 36.0}, "cycle_folds": (),
-                 "branch_points": (), "points": _POINTS, "homoclinic": None}]},
+    {
+        "label": "no fish",
+        "param": "quota",
+        "range": (0.0, 1.0),
+        "set": {},
+        "x0": None,
+        "detect": _DETECT,
+        "hopf": (),
+        "folds": (),
+        "branch_points": (0.6,),
+        "orbits": [],
+    },
+    {
+        "label": "no sharks",
+        "param": "quota",
+        "range": (0.0, 1.0),
+        "set": {},
+        "x0": (1.0, 0.0),
+        "detect": _DETECT,
+        "hopf": (),
+        "folds": (0.832929,),
+        "branch_points": (0.821904, 0.6),
+        "orbits": [],
+    },
+    {
+        "label": "fish = 1/3",
+        "param": "quota",
+        "range": (0.0, 1.0),
+        "set": {},
+        "x0": (1.0 / 3.0, 2.0),
+        "detect": _DETECT,
+        "hopf": (0.671594,),
+        "folds": (),
+        "branch_points": (0.821904,),
+        "orbits": [
+            {
+                "hopf": 0.671594,
+                "detect": ("cycle_fold", "period_doubling", "torus", "branch_point"),
+                "stop": {"param": (0.0, 1.0), "period": 36.0},
+                "cycle_folds": (),
+                "branch_points": (),
+                "points": _POINTS,
+                "homoclinic": None,
+            }
+        ],
+    },
 ]

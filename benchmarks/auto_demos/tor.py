@@ -22,30 +22,74 @@ def field(u, p):
     nu, beta, gamma, r, a3, b3 = p[0], p[1], p[2], p[3], p[4], p[5]
     x, y, z = u[0], u[1], u[2]
     c = b3 * (y - x) ** 3
-    return jnp.stack([(-(beta + nu) * x + beta * y - a3 * x**3 + c) / r,
-                      beta * x - (beta + gamma) * y - z - c, y])
+    return jnp.stack(
+        [
+            (-(beta + nu) * x + beta * y - a3 * x**3 + c) / r,
+            beta * x - (beta + gamma) * y - z - c,
+            y,
+        ]
+    )
 
 
-register("tor", System(
-    name="tor", states=("x", "y", "z"),
-    parameters=(Parameter("nu", -0.9, "1", "PAR(1)"), Parameter("beta", 0.5, "1", "PAR(2)"),
-                Parameter("gamma", -0.6, "1", "PAR(3)"), Parameter("r", 0.6, "1", "PAR(4)"),
-                Parameter("a3", 0.328578, "1", "PAR(5)"), Parameter("b3", 0.933578, "1", "PAR(6)")),
-    field=field, default_param="nu", description="AUTO-07p demo tor",
-), overwrite=True)
+register(
+    "tor",
+    System(
+        name="tor",
+        states=("x", "y", "z"),
+        parameters=(
+            Parameter("nu", -0.9, "1", "PAR(1)"),
+            Parameter("beta", 0.5, "1", "PAR(2)"),
+            Parameter("gamma", -0.6, "1", "PAR(3)"),
+            Parameter("r", 0.6, "1", "PAR(4)"),
+            Parameter("a3", 0.328578, "1", "PAR(5)"),
+            Parameter("b3", 0.933578, "1", "PAR(6)"),
+        ),
+        field=field,
+        default_param="nu",
+        description="AUTO-07p demo tor",
+    ),
+    overwrite=True,
+)
 
 AUTO_RUNS = [
-    {"label": "origin", "param": "nu", "range": (-0.9, -0.4), "set": {}, "x0": None,
-     "detect": ("hopf", "fold", "branch_point"), "hopf": (-0.589337,), "folds": (),
-     "branch_points": (-0.5,),
-     "orbits": [{"hopf": -0.589337,
-                 "detect": ("cycle_fold", "period_doubling", "torus", "branch_point"),
-                 "stop": {"max_period": 42.6650},
-                 "cycle_folds": ((-0.584335, 8.42647), (-0.832514, 19.4158),
-                                 (-0.787590, 29.3732), (-0.799899, 39.3706),
-                                 (-0.796906, 42.2879)),
-                 "branch_points": (-0.587029, -0.832438), "points": (), "homoclinic": None}]},
-    {"label": "x > 0 branch", "param": "nu", "range": (-0.9, -0.55), "set": {},
-     "x0": (0.562955, 0.0, 0.448037), "detect": ("hopf", "fold", "branch_point"),
-     "hopf": (), "folds": (), "branch_points": (), "orbits": []},
+    {
+        "label": "origin",
+        "param": "nu",
+        "range": (-0.9, -0.4),
+        "set": {},
+        "x0": None,
+        "detect": ("hopf", "fold", "branch_point"),
+        "hopf": (-0.589337,),
+        "folds": (),
+        "branch_points": (-0.5,),
+        "orbits": [
+            {
+                "hopf": -0.589337,
+                "detect": ("cycle_fold", "period_doubling", "torus", "branch_point"),
+                "stop": {"max_period": 42.6650},
+                "cycle_folds": (
+                    (-0.584335, 8.42647),
+                    (-0.832514, 19.4158),
+                    (-0.787590, 29.3732),
+                    (-0.799899, 39.3706),
+                    (-0.796906, 42.2879),
+                ),
+                "branch_points": (-0.587029, -0.832438),
+                "points": (),
+                "homoclinic": None,
+            }
+        ],
+    },
+    {
+        "label": "x > 0 branch",
+        "param": "nu",
+        "range": (-0.9, -0.55),
+        "set": {},
+        "x0": (0.562955, 0.0, 0.448037),
+        "detect": ("hopf", "fold", "branch_point"),
+        "hopf": (),
+        "folds": (),
+        "branch_points": (),
+        "orbits": [],
+    },
 ]

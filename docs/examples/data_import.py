@@ -38,22 +38,36 @@ def main() -> None:
     amp = ds["amplitude"].values  # (record, signal): max |h| [m], max |alpha| [rad]
     stable = ds["stable"].values == 1
     fig, axes = plt.subplots(1, 3, figsize=(13, 4), constrained_layout=True)
-    curve_u, curve_h, curve_a = load_thesis_curves(DATA / "thesis_curves"
-                                                   / "nonlinear_id_Data_8-1.csv")
-    for ax, j, label, scale, model in ((axes[0], 0, "heave amplitude [mm]", 1e3, curve_h),
-                                       (axes[1], 1, "pitch amplitude [rad]", 1.0, curve_a)):
+    curve_u, curve_h, curve_a = load_thesis_curves(
+        DATA / "thesis_curves" / "nonlinear_id_Data_8-1.csv"
+    )
+    for ax, j, label, scale, model in (
+        (axes[0], 0, "heave amplitude [mm]", 1e3, curve_h),
+        (axes[1], 1, "pitch amplitude [rad]", 1.0, curve_a),
+    ):
         ax.plot(curve_u, model * scale, color="0.6", lw=1.5, label="thesis model (ch. 4)")
         ax.plot(U[stable], amp[stable, j] * scale, "o", color="C0", label="stable LCO (CBC)")
-        ax.plot(U[~stable], amp[~stable, j] * scale, "o", mfc="white", color="C3",
-                label="unstable LCO (CBC)")
+        ax.plot(
+            U[~stable],
+            amp[~stable, j] * scale,
+            "o",
+            mfc="white",
+            color="C3",
+            label="unstable LCO (CBC)",
+        )
         ax.set_xlabel("wind speed U [m/s]")
         ax.set_ylabel(label)
         ax.grid(alpha=0.3)
     axes[0].legend(frameon=False)
     for r, color in zip(lco_records(ds)[::4], ("C0", "C3", "C2"), strict=False):
         n = int(2 * 2 * np.pi / r.frequency * r.sample_rate)  # two periods
-        axes[2].plot(r.signals[:n, 0] * 1e3, r.signals[:n, 1], color=color, lw=1,
-                     label=f"U = {r.param:g} m/s, {'stable' if r.stable else 'unstable'}")
+        axes[2].plot(
+            r.signals[:n, 0] * 1e3,
+            r.signals[:n, 1],
+            color=color,
+            lw=1,
+            label=f"U = {r.param:g} m/s, {'stable' if r.stable else 'unstable'}",
+        )
     axes[2].set_xlabel("heave h [mm]")
     axes[2].set_ylabel("pitch alpha [rad]")
     axes[2].legend(frameon=False, fontsize=8)

@@ -34,30 +34,60 @@ data = LCOData.from_dataset(ds)  # amplitudes max|x - mean| [m, rad], labels, Wi
 # The rig file stores the measured parameters (b, a, rho, m, m_T, x_alpha, k_h) and the
 # authors' starting guesses; omega_alpha = sqrt(ka / Ia) comes from a shaker test, so ka is
 # tied to Ia during the linear stage (Table 4.1: ka = omega_alpha^2 Ia).
-rig_names = {"I__alpha": "Ia", "c__alpha": "ca", "c__h": "ch", "k__alpha": "ka", "k__h": "kh",
-             "x__alpha": "xa", "m": "mw", "m__T": "mT", "b": "b", "a": "a", "rho": "rho"}
+rig_names = {
+    "I__alpha": "Ia",
+    "c__alpha": "ca",
+    "c__h": "ch",
+    "k__alpha": "ka",
+    "k__h": "kh",
+    "x__alpha": "xa",
+    "m": "mw",
+    "m__T": "mT",
+    "b": "b",
+    "a": "a",
+    "rho": "rho",
+}
 params = {rig_names[k]: float(v) for k, v in fd.guesses.items() if k in rig_names}
 
 # 2. The three stages: linear PEM (Ia, ca, ch), normal form (ka2, ka3 near the Hopf point),
 #    whole-diagram update by collocation with implicit-differentiation gradients
-model = MechanisticModel("flutter", free=("ka2", "ka3"), params=params, outputs=("h",),
-                         linear_free=("Ia", "ca", "ch"), linear_outputs=("h", "alpha"),
-                         linear_ratios={"ka": "Ia"}, param_ref="data", n_mesh=32)
+model = MechanisticModel(
+    "flutter",
+    free=("ka2", "ka3"),
+    params=params,
+    outputs=("h",),
+    linear_free=("Ia", "ca", "ch"),
+    linear_outputs=("h", "alpha"),
+    linear_ratios={"ka": "Ia"},
+    param_ref="data",
+    n_mesh=32,
+)
 with warnings.catch_warnings():
     warnings.simplefilter("ignore")
     model.fit(data, free_decay=fd)
 
 lin = model.stages_["linear"]
-print("linear stage:", {k: round(v, 4) for k, v in lin["parameters"].items()},
-      "fit %:", {k: round(v, 1) for k, v in lin["fit_percent"].items()})
-print("flutter from unstable LCOs (amplitude^2 regression): "
-      f"{model.data_hopf_['param']:.2f} m/s, {model.data_hopf_['frequency_hz']:.3f} Hz")
-print(f"model Hopf point: {model.hopf_['param']:.2f} m/s, {model.hopf_['frequency_hz']:.3f} Hz, "
-      f"{model.hopf_['criticality']}")
+print(
+    "linear stage:",
+    {k: round(v, 4) for k, v in lin["parameters"].items()},
+    "fit %:",
+    {k: round(v, 1) for k, v in lin["fit_percent"].items()},
+)
+print(
+    "flutter from unstable LCOs (amplitude^2 regression): "
+    f"{model.data_hopf_['param']:.2f} m/s, {model.data_hopf_['frequency_hz']:.3f} Hz"
+)
+print(
+    f"model Hopf point: {model.hopf_['param']:.2f} m/s, {model.hopf_['frequency_hz']:.3f} Hz, "
+    f"{model.hopf_['criticality']}"
+)
 for stage, s in model.stages_.items():
     rms = s.get("rms_all")
-    print(f"{stage:>14}: RMS heave error {1e3 * rms:.2f} mm over {s.get('n_matched')} LCOs"
-          if rms is not None else f"{stage:>14}: no diagram")
+    print(
+        f"{stage:>14}: RMS heave error {1e3 * rms:.2f} mm over {s.get('n_matched')} LCOs"
+        if rms is not None
+        else f"{stage:>14}: no diagram"
+    )
 print("identified:", model.params_)
 print(model.identifiability_["statement"])
 
@@ -65,6 +95,14 @@ print(model.identifiability_["statement"])
 diagram = model.predict_diagram(range=(12.0, 19.0))
 out = Path(os.environ.get("BIFID_EXAMPLE_OUT", ROOT / "out")) / "mechanistic_example.png"
 out.parent.mkdir(exist_ok=True)
-save_figure(plot_diagram(diagram, data.diagram(), labels=["identified model", "measured"],
-                         signals=["h"], title="Flutter rig set-up 1: identified model"), out)
+save_figure(
+    plot_diagram(
+        diagram,
+        data.diagram(),
+        labels=["identified model", "measured"],
+        signals=["h"],
+        title="Flutter rig set-up 1: identified model",
+    ),
+    out,
+)
 print("figure:", out, "| cycle fold", np.round(model.cycle_fold_, 2), "m/s")

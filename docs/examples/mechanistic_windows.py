@@ -23,8 +23,15 @@ RIG = Path(__file__).resolve().parents[2].parent / "shared" / "data" / "flutter_
 fd = load_free_decay(RIG / "free_decay" / "model1_free_decay.mat")
 y = np.column_stack([fd.heave, fd.pitch])
 fs, g = fd.sample_rate, fd.guesses
-start = {"U": 0.0, "Ia": g["I__alpha"], "ca": g["c__alpha"], "ch": g["c__h"],
-         "ka": g["k__alpha"], "kh": g["k__h"], "xa": g["x__alpha"]}
+start = {
+    "U": 0.0,
+    "Ia": g["I__alpha"],
+    "ca": g["c__alpha"],
+    "ch": g["c__h"],
+    "ka": g["k__alpha"],
+    "kh": g["k__h"],
+    "xa": g["x__alpha"],
+}
 print("| window [s] | Ia | ca | ch | fit h [%] | fit alpha [%] |")
 print("|---|---|---|---|---|---|")
 print("| Table 4.1 | 0.1724 | 0.5628 | 14.5756 | | |")
@@ -32,9 +39,17 @@ for t0 in (0.3, release_index(y) / fs, 1.0, 2.0):
     for dur in (None, 3.0):
         a = round(t0 * fs)
         b = len(y) if dur is None else a + round(dur * fs)
-        m = LinearPEM("flutter", ("Ia", "ca", "ch"), ("h", "alpha"), params=start,
-                      ratios={"ka": "Ia"},
-                      decimate=10).fit(y[a:b], fs)
-        print(f"| {t0:.2f}–{b / fs:.2f} | {m.params_['Ia']:.4f} | {m.params_['ca']:.4f} | "
-              f"{m.params_['ch']:.3f} | {m.fit_percent_['h']:.1f} | "
-              f"{m.fit_percent_['alpha']:.1f} |", flush=True)
+        m = LinearPEM(
+            "flutter",
+            ("Ia", "ca", "ch"),
+            ("h", "alpha"),
+            params=start,
+            ratios={"ka": "Ia"},
+            decimate=10,
+        ).fit(y[a:b], fs)
+        print(
+            f"| {t0:.2f}–{b / fs:.2f} | {m.params_['Ia']:.4f} | {m.params_['ca']:.4f} | "
+            f"{m.params_['ch']:.3f} | {m.fit_percent_['h']:.1f} | "
+            f"{m.fit_percent_['alpha']:.1f} |",
+            flush=True,
+        )

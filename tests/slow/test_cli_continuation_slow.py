@@ -20,8 +20,9 @@ def test_van_der_pol_has_exactly_one_hopf_point_and_true_orbits(bifid_cli):
     complete answer, and the orbits of the JSON nearest mu = 1, 2, 3, 5 against a direct
     simulation at their parameter: periods and amplitudes to 1e-8 relative, on the mesh
     each orbit records (relaxation oscillations need a finer mesh as mu grows)."""
-    r = bifid_cli("continue", "vanderpol", "--param", "mu", "--range", "-3", "5", "--json",
-                  "--quiet")
+    r = bifid_cli(
+        "continue", "vanderpol", "--param", "mu", "--range", "-3", "5", "--json", "--quiet"
+    )
     assert "Traceback" not in r.stderr
     data = r.json
     (h,) = data["hopf"]
@@ -45,8 +46,21 @@ def test_frc_finds_the_narrow_superharmonic_peak(bifid_cli):
     """Check `frc duffing --forcing 0.1 --omega-range 0.25 0.45 --set zeta=0.002 --set
     gamma=1`: the 3:1 superharmonic peak (0.1830 at Omega 0.3373, by shooting on the
     narrowed range) is found, not the range end."""
-    r = bifid_cli("frc", "duffing", "--forcing", "0.1", "--omega-range", "0.25", "0.45",
-                  "--set", "zeta=0.002", "--set", "gamma=1", "--json", "--quiet")
+    r = bifid_cli(
+        "frc",
+        "duffing",
+        "--forcing",
+        "0.1",
+        "--omega-range",
+        "0.25",
+        "0.45",
+        "--set",
+        "zeta=0.002",
+        "--set",
+        "gamma=1",
+        "--json",
+        "--quiet",
+    )
     assert r.code == 0, r.stderr
     peak = r.json["peak"]
     assert peak["omega"] == pytest.approx(0.3373, abs=5e-5)
@@ -56,8 +70,17 @@ def test_frc_finds_the_narrow_superharmonic_peak(bifid_cli):
 def test_backbone_of_the_second_mode_stays_on_it(bifid_cli):
     """Check `backbone shaw_pierre --mode 1 --amplitude-range 0.01 2`: every point on the
     second mode (frequency near sqrt(3), mode share > 0.99), amplitudes exactly the range."""
-    r = bifid_cli("backbone", "shaw_pierre", "--mode", "1", "--amplitude-range", "0.01", "2",
-                  "--json", "--quiet")
+    r = bifid_cli(
+        "backbone",
+        "shaw_pierre",
+        "--mode",
+        "1",
+        "--amplitude-range",
+        "0.01",
+        "2",
+        "--json",
+        "--quiet",
+    )
     assert r.code == 0, r.stderr
     pts = r.json["points"]
     assert r.json["complete"] is True

@@ -82,16 +82,29 @@ def _shoot(zeta, gamma, F, Om, z0):
     rhs = _duffing_rhs(zeta, gamma, F, Om)
     z = np.asarray(z0, dtype=float)
     for _ in range(30):
-        sol = solve_ivp(rhs, (0, T), np.concatenate([z, np.eye(2).ravel()]), rtol=1e-10,
-                        atol=1e-12, method="DOP853")
+        sol = solve_ivp(
+            rhs,
+            (0, T),
+            np.concatenate([z, np.eye(2).ravel()]),
+            rtol=1e-10,
+            atol=1e-12,
+            method="DOP853",
+        )
         r = sol.y[:2, -1] - z
         if np.max(np.abs(r)) < 1e-10:
             break
         z = z - np.linalg.solve(sol.y[2:, -1].reshape(2, 2) - np.eye(2), r)
     else:
         return None, None
-    sol = solve_ivp(lambda t, y: rhs(t, np.concatenate([y, np.zeros(4)]))[:2], (0, T), z,
-                    rtol=1e-12, atol=1e-14, method="DOP853", dense_output=True)
+    sol = solve_ivp(
+        lambda t, y: rhs(t, np.concatenate([y, np.zeros(4)]))[:2],
+        (0, T),
+        z,
+        rtol=1e-12,
+        atol=1e-14,
+        method="DOP853",
+        dense_output=True,
+    )
     ts = np.linspace(0, T, 4001)
     q = np.abs(sol.sol(ts)[0])
     i = int(np.argmax(q))
@@ -115,11 +128,18 @@ def _period_map():
     def run(z0, a):
         T = 2 * jnp.pi / a[3]
         sol = diffrax.diffeqsolve(
-            diffrax.ODETerm(rhs), diffrax.Dopri8(), 0.0, T, None,
-            jnp.concatenate([z0, jnp.eye(2).ravel()]), args=a,
+            diffrax.ODETerm(rhs),
+            diffrax.Dopri8(),
+            0.0,
+            T,
+            None,
+            jnp.concatenate([z0, jnp.eye(2).ravel()]),
+            args=a,
             stepsize_controller=diffrax.PIDController(rtol=1e-11, atol=1e-13),
-            saveat=diffrax.SaveAt(ts=jnp.linspace(0.0, T, 1025)), max_steps=20_000,
-            throw=False)
+            saveat=diffrax.SaveAt(ts=jnp.linspace(0.0, T, 1025)),
+            max_steps=20_000,
+            throw=False,
+        )
         return sol.ys
 
     return jax.jit(run)
@@ -162,11 +182,14 @@ def test_duffing_superharmonic_peaks_match_dense_shooting(gamma):
     assert br.status == "range"
     omegas = np.arange(0.18, 0.45 + 1e-12, 1e-3)
     W = np.concatenate([br.params, [sp.param for sp in br.special("peak")]])
-    A = np.concatenate([br.data["observed_amplitude"],
-                        [sp.data["amplitude"] for sp in br.special("peak")]])
+    A = np.concatenate(
+        [br.data["observed_amplitude"], [sp.data["amplitude"] for sp in br.special("peak")]]
+    )
     n_peaks = 0
-    for grid, amps in ((omegas, _sweep(zeta, gamma, F, omegas)),
-                       (omegas[::-1], _sweep(zeta, gamma, F, omegas[::-1]))):
+    for grid, amps in (
+        (omegas, _sweep(zeta, gamma, F, omegas)),
+        (omegas[::-1], _sweep(zeta, gamma, F, omegas[::-1])),
+    ):
         for i in range(1, len(grid) - 1):
             if amps[i] > amps[i - 1] and amps[i] >= amps[i + 1]:
                 near = np.abs(W - grid[i]) <= 2e-3
@@ -191,8 +214,7 @@ def _nnm(A, mode, guess):
         return [v1, -2 * x1 + x2 - kappa * x1**3, v2, x1 - 2 * x2]
 
     def half(u):
-        sol = solve_ivp(f, (0, u[1]), [A, 0, u[0], 0], rtol=1e-12, atol=1e-14,
-                        method="DOP853")
+        sol = solve_ivp(f, (0, u[1]), [A, 0, u[0], 0], rtol=1e-12, atol=1e-14, method="DOP853")
         return [sol.y[1, -1], sol.y[3, -1]]
 
     u = fsolve(half, guess, xtol=1e-13)

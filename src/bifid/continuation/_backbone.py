@@ -129,7 +129,10 @@ def backbone(
     args = {"p": p, "idx": jnp.asarray([iF, iOm]), "obs": jnp.asarray(obs)}
     policy = MeshPolicy.of(n_mesh, max_mesh, resolution_tol, adapt, n)
     options = options or ContinuationOptions(
-        ds=a_lo, ds_min=a_lo * 1e-8, ds_max=(a_hi - a_lo) / 20, max_steps=2000,
+        ds=a_lo,
+        ds_min=a_lo * 1e-8,
+        ds_max=(a_hi - a_lo) / 20,
+        max_steps=2000,
         detect_folds=False,
     )
 
@@ -146,8 +149,9 @@ def backbone(
     e = np.zeros_like(y0)
     e[M * n] = 1.0
     for _ in range(8):  # start exactly at the lower amplitude (amplitude ~ F there)
-        y0, ok, _, res = correct(stage_of(M).problem, y0, e, F0, args, tol=options.newton_tol,
-                                 max_iter=30)
+        y0, ok, _, res = correct(
+            stage_of(M).problem, y0, e, F0, args, tol=options.newton_tol, max_iter=30
+        )
         if not ok:
             raise ConvergenceError(
                 f"Could not start the backbone of {system.name!r} at amplitude {a_lo:g} "
@@ -160,8 +164,10 @@ def backbone(
         y0 = y0.copy()
         y0[: M * n] *= ratio
     if mesh_tail(y0, M, n) > resolution_tol:
-        raise ConvergenceError(f"The backbone start of {system.name!r} is not resolved on {M} "
-                               "points; pass a larger n_mesh.")
+        raise ConvergenceError(
+            f"The backbone start of {system.name!r} is not resolved on {M} "
+            "points; pass a larger n_mesh."
+        )
     t0 = np.zeros_like(y0)
     t0[M * n] = 1.0
 
@@ -172,8 +178,9 @@ def backbone(
     if run.stop_reason is not None:
         _end_at(run, a_hi, stage_of, amplitude, n)
         run.status, run.message = "range", f"reached the amplitude bound {a_hi:g}"
-    br = forced_branch(system, "backbone", "F", run, p, [iF, iOm], options, policy, obs_name,
-                       stage_of, forcing)
+    br = forced_branch(
+        system, "backbone", "F", run, p, [iF, iOm], options, policy, obs_name, stage_of, forcing
+    )
     share = mode_share(br.solutions.reshape(len(br), -1, n), J, Om0)
     br.data["mode_share"] = share
     br.verification["mode_share"] = share
@@ -181,9 +188,11 @@ def backbone(
     if bad.size:
         _cut(br, int(bad[0]))
         br.status = "failed"
-        br.message = (f"the backbone left mode {mode} at amplitude "
-                      f"{br.data['observed_amplitude'][-1]:.6g}: beyond it the share of mode "
-                      f"{mode} in the response fell below {MODE_SHARE_MIN:g}")
+        br.message = (
+            f"the backbone left mode {mode} at amplitude "
+            f"{br.data['observed_amplitude'][-1]:.6g}: beyond it the share of mode "
+            f"{mode} in the response fell below {MODE_SHARE_MIN:g}"
+        )
     br.meta.update(mode=mode, linear_frequency=Om0, forcing_direction=list(forcing))
     return br
 

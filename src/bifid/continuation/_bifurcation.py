@@ -24,15 +24,26 @@ from bifid.errors import BifidInputError, ConvergenceError
 from bifid.systems import System
 
 
-def _failed_orbit_branch(system: System, param: str, p: Any, hopf: SpecialPoint,
-                         exc: BaseException) -> Branch:
+def _failed_orbit_branch(
+    system: System, param: str, p: Any, hopf: SpecialPoint, exc: BaseException
+) -> Branch:
     text = str(exc).strip().splitlines()
-    return Branch(kind="periodic", system=system.name, param=param, params=np.empty(0),
-                  solutions=np.empty((0, system.n_states)), stable=np.empty(0, bool),
-                  special_points=[], data={}, p=np.asarray(p), status="failed",
-                  message=f"the orbit branch of the Hopf point at {param}={hopf.param:.8g} "
-                  f"failed: {text[0] if text else type(exc).__name__}",
-                  signals=tuple(system.states), meta={"start_param": hopf.param})
+    return Branch(
+        kind="periodic",
+        system=system.name,
+        param=param,
+        params=np.empty(0),
+        solutions=np.empty((0, system.n_states)),
+        stable=np.empty(0, bool),
+        special_points=[],
+        data={},
+        p=np.asarray(p),
+        status="failed",
+        message=f"the orbit branch of the Hopf point at {param}={hopf.param:.8g} "
+        f"failed: {text[0] if text else type(exc).__name__}",
+        signals=tuple(system.states),
+        meta={"start_param": hopf.param},
+    )
 
 
 def bifurcation_diagram(
@@ -99,28 +110,49 @@ def bifurcation_diagram(
     """
     start, end = float(start), float(end)
     if not (np.isfinite(start) and np.isfinite(end)) or start == end:
-        raise BifidInputError(f"the range must be two different finite numbers, got "
-                              f"{start!r}, {end!r}.")
+        raise BifidInputError(
+            f"the range must be two different finite numbers, got {start!r}, {end!r}."
+        )
     p = system.param_vector() if p is None else jnp.asarray(p, dtype=jnp.float64)
     lo, hi = min(start, end), max(start, end)
     span = hi - lo
     eq_options = eq_options or ContinuationOptions(
-        ds=span / 50, ds_max=span / 20, ds_min=span * 1e-9, p_min=lo, p_max=hi,
-        max_steps=max_steps, direction=1 if end > start else -1)
-    eq = equilibria(system, param, p=p, x0=x0, start=start, options=eq_options,
-                    progress=progress)
+        ds=span / 50,
+        ds_max=span / 20,
+        ds_min=span * 1e-9,
+        p_min=lo,
+        p_max=hi,
+        max_steps=max_steps,
+        direction=1 if end > start else -1,
+    )
+    eq = equilibria(system, param, p=p, x0=x0, start=start, options=eq_options, progress=progress)
     branches = [eq]
     if orbits:
         # at least ten steps across the range in the parameter; longer ones in the orbits
         # where the branch is nearly vertical (the orbits change, the parameter hardly)
         orbit_options = orbit_options or ContinuationOptions(
-            ds=1e-3, ds_max=0.25, dp_max=max(1e-3, min(0.25, span / 10)), ds_min=1e-9,
-            p_min=lo, p_max=hi, max_steps=max_steps)
+            ds=1e-3,
+            ds_max=0.25,
+            dp_max=max(1e-3, min(0.25, span / 10)),
+            ds_min=1e-9,
+            p_min=lo,
+            p_max=hi,
+            max_steps=max_steps,
+        )
         for h in eq.special("hopf"):
             try:
-                branches.append(hopf_orbits(system, h, p=p, n_mesh=n_mesh, max_mesh=max_mesh,
-                                            adapt=adapt, options=orbit_options,
-                                            progress=progress))
+                branches.append(
+                    hopf_orbits(
+                        system,
+                        h,
+                        p=p,
+                        n_mesh=n_mesh,
+                        max_mesh=max_mesh,
+                        adapt=adapt,
+                        options=orbit_options,
+                        progress=progress,
+                    )
+                )
             except LOCATION_ERRORS as exc:
                 branches.append(_failed_orbit_branch(system, param, p, h, exc))
     return diagram_of("bifurcation", branches, **diagram_kw)
@@ -151,9 +183,19 @@ def continue_from_hopf(
     ConvergenceError
         If the orbits of a Hopf point could not be started (the reason in the message).
     """
-    diagram = bifurcation_diagram(system, param, lo, hi, p=p, x0=x0, n_mesh=n_mesh,
-                                  max_mesh=max_mesh, eq_options=eq_options,
-                                  orbit_options=orbit_options, progress=progress)
+    diagram = bifurcation_diagram(
+        system,
+        param,
+        lo,
+        hi,
+        p=p,
+        x0=x0,
+        n_mesh=n_mesh,
+        max_mesh=max_mesh,
+        eq_options=eq_options,
+        orbit_options=orbit_options,
+        progress=progress,
+    )
     eq, *branches = diagram.branches
     if not eq.special("hopf"):
         a, b = min(lo, hi), max(lo, hi)

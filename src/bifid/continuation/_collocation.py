@@ -108,8 +108,12 @@ def orbit_stage(system: System, p: Array, idx: int, M: int) -> Stage:
         V = np.asarray(y[: M * n]).reshape(M, n)
         return {"p": p, "idx": jnp.asarray(idx), "dref": jnp.asarray((D @ V).ravel())}
 
-    return Stage(problem=orbit_problem(system.field, M, n), weights=orbit_weights(M, n),
-                 args=args_of, update_args=lambda y, args: args_of(y))
+    return Stage(
+        problem=orbit_problem(system.field, M, n),
+        weights=orbit_weights(M, n),
+        args=args_of,
+        update_args=lambda y, args: args_of(y),
+    )
 
 
 def hopf_orbits(
@@ -189,25 +193,43 @@ def hopf_orbits(
     args = {"p": p, "idx": jnp.asarray(idx), "dref": jnp.asarray((D @ direction).ravel())}
     y_pred = y_h + eps * t0
     row = stage.weights * t0
-    y1, ok, _, res = correct(stage.problem, y_pred, row, float(row @ y_pred), args,
-                             tol=options.newton_tol, max_iter=options.newton_max_iter)
+    y1, ok, _, res = correct(
+        stage.problem,
+        y_pred,
+        row,
+        float(row @ y_pred),
+        args,
+        tol=options.newton_tol,
+        max_iter=options.newton_max_iter,
+    )
     if not ok or mesh_tail(y1, M, n) > resolution_tol:
         raise ConvergenceError(
             f"Could not converge the first periodic orbit next to the Hopf point at "
             f"{param}={hopf.param:.8g} (residual {res:.1e}); try a smaller first step (ds)."
         )
-    ends = OrbitEnds(first_amplitude=_centred_amplitude(y1, M, n), first_period=TWO_PI / omega,
-                     n_states=n)
-    run = run_adaptive(lambda m: orbit_stage(system, p, idx, m), y1, t0, policy, options, n,
-                       stop=ends.stop, monitor=ends.monitor, progress=progress)
+    ends = OrbitEnds(
+        first_amplitude=_centred_amplitude(y1, M, n), first_period=TWO_PI / omega, n_states=n
+    )
+    run = run_adaptive(
+        lambda m: orbit_stage(system, p, idx, m),
+        y1,
+        t0,
+        policy,
+        options,
+        n,
+        stop=ends.stop,
+        monitor=ends.monitor,
+        progress=progress,
+    )
     run.ys.insert(0, y_h)
     run.meshes.insert(0, M)
     run.tangents.insert(0, t0)
     run.tails.insert(0, 0.0)
     run.args.insert(0, args)
     run.events = [(i + 1, *rest) for i, *rest in run.events]
-    return orbit_branch(system, param, p, run, options, policy, hopf,
-                        lambda m: orbit_stage(system, p, idx, m))
+    return orbit_branch(
+        system, param, p, run, options, policy, hopf, lambda m: orbit_stage(system, p, idx, m)
+    )
 
 
 def periodic_orbits(
@@ -250,9 +272,7 @@ def periodic_orbits(
     p = system.param_vector() if p is None else jnp.asarray(p, dtype=jnp.float64)
     orbit = np.asarray(orbit, dtype=float)
     if orbit.ndim != 2 or orbit.shape[1] != system.n_states:
-        raise BifidInputError(
-            f"orbit must have shape (M, {system.n_states}), got {orbit.shape}."
-        )
+        raise BifidInputError(f"orbit must have shape (M, {system.n_states}), got {orbit.shape}.")
     M = n_mesh or orbit.shape[0]
     policy = MeshPolicy.of(M, max_mesh, resolution_tol, adapt, system.n_states)
     V = resample_orbit(orbit, M) if orbit.shape[0] != M else orbit
@@ -262,8 +282,9 @@ def periodic_orbits(
     stage = orbit_stage(system, p, idx, M)
     e = np.zeros_like(y0)
     e[-1] = 1.0
-    y0, ok, _, res = correct(stage.problem, y0, e, lam0, stage.args(y0), tol=options.newton_tol,
-                             max_iter=30)
+    y0, ok, _, res = correct(
+        stage.problem, y0, e, lam0, stage.args(y0), tol=options.newton_tol, max_iter=30
+    )
     if not ok:
         raise ConvergenceError(
             f"The starting orbit of {system.name!r} at {param}={lam0:.8g} did not converge "
@@ -277,14 +298,29 @@ def periodic_orbits(
         )
     t0 = np.zeros_like(y0)
     t0[-1] = float(options.direction)
-    ends = OrbitEnds(first_amplitude=_centred_amplitude(y0, M, n), first_period=float(y0[M * n]),
-                     n_states=n, from_hopf=False)
-    run = run_adaptive(lambda m: orbit_stage(system, p, idx, m), y0, t0, policy, options, n,
-                       stop=ends.stop, monitor=ends.monitor, progress=progress)
-    start = SpecialPoint(kind="start", param=lam0, index=0, bracket=(lam0, lam0),
-                         solution=y0, data={})
-    return orbit_branch(system, param, p, run, options, policy, start,
-                        lambda m: orbit_stage(system, p, idx, m))
+    ends = OrbitEnds(
+        first_amplitude=_centred_amplitude(y0, M, n),
+        first_period=float(y0[M * n]),
+        n_states=n,
+        from_hopf=False,
+    )
+    run = run_adaptive(
+        lambda m: orbit_stage(system, p, idx, m),
+        y0,
+        t0,
+        policy,
+        options,
+        n,
+        stop=ends.stop,
+        monitor=ends.monitor,
+        progress=progress,
+    )
+    start = SpecialPoint(
+        kind="start", param=lam0, index=0, bracket=(lam0, lam0), solution=y0, data={}
+    )
+    return orbit_branch(
+        system, param, p, run, options, policy, start, lambda m: orbit_stage(system, p, idx, m)
+    )
 
 
 def _centred_amplitude(y: np.ndarray, M: int, n: int) -> float:

@@ -51,6 +51,7 @@ Array = jnp.ndarray
 Residual = Callable[[Array, Any], Array]
 Jacobian = Callable[[Array, Any], Array]
 
+
 @dataclass(frozen=True, eq=False)
 class ZeroProblem:
     """A zero problem for continuation.
@@ -139,8 +140,7 @@ class _Factorisation:
         return float((-1) ** swaps * np.prod(np.sign(np.diag(self.lu))))
 
 
-def _factor(Jm: np.ndarray, row: np.ndarray, y: np.ndarray, args: Any = None
-            ) -> _Factorisation:
+def _factor(Jm: np.ndarray, row: np.ndarray, y: np.ndarray, args: Any = None) -> _Factorisation:
     n = Jm.shape[0]
     A = np.empty((n + 1, Jm.shape[1]))
     A[:n] = Jm
@@ -192,8 +192,9 @@ class AbstractCorrector(abc.ABC):
         """Correct ``y_pred`` onto ``G(y) = 0`` with ``row . y = c``."""
 
     @abc.abstractmethod
-    def tangent(self, y: np.ndarray, t_prev: np.ndarray, weights: np.ndarray,
-                args: Any) -> tuple[np.ndarray, float]:
+    def tangent(
+        self, y: np.ndarray, t_prev: np.ndarray, weights: np.ndarray, args: Any
+    ) -> tuple[np.ndarray, float]:
         """Unit tangent at ``y`` (``||t||_W = 1``, ``(W t_prev) . t > 0``) and the sign of
         ``det [G_y; (W t_prev)^T]`` (NaN when unknown)."""
 
@@ -266,8 +267,13 @@ class NewtonCorrector(AbstractCorrector):
                 break
             # reuse the factorisation for one iteration predicted (from the measured
             # quadratic convergence) to end below the tolerance; never twice in a row
-            reuse = (large and not reuse and np.isfinite(err_prev) and err < err_prev
-                     and err**3 <= 0.1 * self.tol * err_prev**2)
+            reuse = (
+                large
+                and not reuse
+                and np.isfinite(err_prev)
+                and err < err_prev
+                and err**3 <= 0.1 * self.tol * err_prev**2
+            )
         if fact is not None and large:
             self._last = fact
         res = float(np.max(np.abs(self.residual(y, args))))
@@ -291,8 +297,9 @@ class NewtonCorrector(AbstractCorrector):
         t = t / np.sqrt(t @ (w * t))
         return t, sign
 
-    def _refined_tangent(self, y: np.ndarray, row: np.ndarray, rhs: np.ndarray, args: Any
-                         ) -> tuple[np.ndarray, float] | None:
+    def _refined_tangent(
+        self, y: np.ndarray, row: np.ndarray, rhs: np.ndarray, args: Any
+    ) -> tuple[np.ndarray, float] | None:
         """Solve ``[G_y(y); row^T] t = rhs`` with the last factorisation (taken near ``y``,
         perhaps with another last row) and iterative refinement; None when it does not
         converge."""
@@ -350,8 +357,9 @@ def correct(
     """
     corrector = NewtonCorrector(problem, tol=tol, max_iter=max_iter)
     with threadpool_limits(1, user_api="blas"):
-        r = corrector.correct(np.asarray(y_guess, dtype=float), np.asarray(row, dtype=float),
-                              float(c), args)
+        r = corrector.correct(
+            np.asarray(y_guess, dtype=float), np.asarray(row, dtype=float), float(c), args
+        )
     return np.asarray(r.y), bool(r.converged), int(r.iterations), float(r.residual)
 
 

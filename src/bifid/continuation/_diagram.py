@@ -191,38 +191,67 @@ class Diagram:
     # --------------------------------------------------------------------- JSON
     def to_json(self) -> dict[str, Any]:
         """The JSON object the CLI prints (``DESIGN.md``, public contract)."""
-        out: dict[str, Any] = {"system": self.system, "param": self.param, "kind": self.kind,
-                               "source": self.source}
+        out: dict[str, Any] = {
+            "system": self.system,
+            "param": self.param,
+            "kind": self.kind,
+            "source": self.source,
+        }
         out.update(self.info)
         if self.kind == "bifurcation":
-            out["hopf"] = [self._special_json(sp, b) for b in self.branches
-                           for sp in b.special("hopf")]
-            out["folds"] = [self._special_json(sp, b) for b in self.of_kind("equilibrium")
-                            for sp in b.special("fold")]
-            out["cycle_folds"] = [self._special_json(sp, b) for b in self.branches
-                                  for sp in b.special("cycle_fold")]
-            out["secondary"] = [self._special_json(sp, b) for b in self.branches
-                                for sp in b.special_points if sp.kind in _SECONDARY]
+            out["hopf"] = [
+                self._special_json(sp, b) for b in self.branches for sp in b.special("hopf")
+            ]
+            out["folds"] = [
+                self._special_json(sp, b)
+                for b in self.of_kind("equilibrium")
+                for sp in b.special("fold")
+            ]
+            out["cycle_folds"] = [
+                self._special_json(sp, b) for b in self.branches for sp in b.special("cycle_fold")
+            ]
+            out["secondary"] = [
+                self._special_json(sp, b)
+                for b in self.branches
+                for sp in b.special_points
+                if sp.kind in _SECONDARY
+            ]
             key = "points" if self.source == "measurement" else "orbits"
-            out[key] = [pt for b in self.branches if b.kind != "equilibrium"
-                        for pt in self._points_json(b)]
+            out[key] = [
+                pt for b in self.branches if b.kind != "equilibrium" for pt in self._points_json(b)
+            ]
         else:
             out["points"] = [pt for b in self.branches for pt in self._points_json(b)]
             if self.kind in ("frc", "scurve"):
-                out["folds"] = [self._special_json(sp, b) for b in self.branches
-                                for sp in b.special("fold")]
-                out["secondary"] = [self._special_json(sp, b) for b in self.branches
-                                    for sp in b.special_points if sp.kind in _SECONDARY]
+                out["folds"] = [
+                    self._special_json(sp, b) for b in self.branches for sp in b.special("fold")
+                ]
+                out["secondary"] = [
+                    self._special_json(sp, b)
+                    for b in self.branches
+                    for sp in b.special_points
+                    if sp.kind in _SECONDARY
+                ]
             if self.kind == "frc":
                 out["peak"] = self._peak_json()
-        out["ends"] = [{"branch": i, "param": float(b.params[-1]) if len(b) else None,
-                        "reason": b.status, "message": b.message}
-                       for i, b in enumerate(self.branches)]
-        out["candidates"] = [{"kind": c.kind, "bracket": list(c.bracket), "reason": c.reason,
-                              "branch": i} for i, b in enumerate(self.branches)
-                             for c in b.candidates]
-        out["candidates"] += [{"kind": c.kind, "bracket": list(c.bracket), "reason": c.reason,
-                               "branch": c.branch} for c in self.candidates]
+        out["ends"] = [
+            {
+                "branch": i,
+                "param": float(b.params[-1]) if len(b) else None,
+                "reason": b.status,
+                "message": b.message,
+            }
+            for i, b in enumerate(self.branches)
+        ]
+        out["candidates"] = [
+            {"kind": c.kind, "bracket": list(c.bracket), "reason": c.reason, "branch": i}
+            for i, b in enumerate(self.branches)
+            for c in b.candidates
+        ]
+        out["candidates"] += [
+            {"kind": c.kind, "bracket": list(c.bracket), "reason": c.reason, "branch": c.branch}
+            for c in self.candidates
+        ]
         if self.failures:
             out["failures"] = list(self.failures)
         if self.level is not None:
@@ -336,19 +365,27 @@ class Diagram:
         attrs = dict(tree.attrs)
         if attrs.get("bifid_type") != "diagram":
             raise BifidInputError(f"{path} is not a bifid diagram (no bifid_type='diagram').")
-        branches = [_branch_from_dataset(tree[f"branch_{i}"].to_dataset())
-                    for i in range(int(attrs["n_branches"]))]
+        branches = [
+            _branch_from_dataset(tree[f"branch_{i}"].to_dataset())
+            for i in range(int(attrs["n_branches"]))
+        ]
         level = attrs.get("level")
         return cls(
-            kind=str(attrs["kind"]), system=str(attrs["system"]), param=str(attrs["param"]),
-            branches=branches, source=str(attrs.get("source", "continuation")),
+            kind=str(attrs["kind"]),
+            system=str(attrs["system"]),
+            param=str(attrs["param"]),
+            branches=branches,
+            source=str(attrs.get("source", "continuation")),
             units=json.loads(attrs.get("units", "{}")),
             settings=json.loads(attrs.get("settings", "{}")),
-            candidates=[Candidate(c["kind"], tuple(c["bracket"]), c["reason"], c["branch"])
-                        for c in json.loads(attrs.get("candidates", "[]"))],
+            candidates=[
+                Candidate(c["kind"], tuple(c["bracket"]), c["reason"], c["branch"])
+                for c in json.loads(attrs.get("candidates", "[]"))
+            ],
             failures=json.loads(attrs.get("failures", "[]")),
             warnings=json.loads(attrs.get("warnings", "[]")),
-            level=None if level is None or (isinstance(level, float) and math.isnan(level))
+            level=None
+            if level is None or (isinstance(level, float) and math.isnan(level))
             else float(level),
             info=json.loads(attrs.get("info", "{}")),
         )
@@ -357,8 +394,12 @@ class Diagram:
         import xarray as xr
 
         attrs = {
-            "bifid_type": "diagram", "kind": self.kind, "system": self.system,
-            "param": self.param, "source": self.source, "n_branches": len(self.branches),
+            "bifid_type": "diagram",
+            "kind": self.kind,
+            "system": self.system,
+            "param": self.param,
+            "source": self.source,
+            "n_branches": len(self.branches),
             "units": json.dumps(_clean(self.units)),
             "settings": json.dumps(_clean(self.settings)),
             "candidates": json.dumps(_clean([asdict(c) for c in self.candidates])),
@@ -367,8 +408,9 @@ class Diagram:
             "info": json.dumps(_clean(self.info)),
             "level": math.nan if self.level is None else float(self.level),
         }
-        children = {f"branch_{i}": xr.DataTree(_branch_to_dataset(b))
-                    for i, b in enumerate(self.branches)}
+        children = {
+            f"branch_{i}": xr.DataTree(_branch_to_dataset(b)) for i, b in enumerate(self.branches)
+        }
         return xr.DataTree(xr.Dataset(attrs=attrs), children=children)
 
 
@@ -404,7 +446,7 @@ def _take(ds: Any, prefix: str) -> dict[str, np.ndarray]:
     for name in ds.data_vars:
         if not name.startswith(prefix):
             continue
-        key = name[len(prefix):]
+        key = name[len(prefix) :]
         if key.endswith("__im"):
             continue
         if key.endswith("__re"):
@@ -436,16 +478,31 @@ def _branch_to_dataset(b: Branch):
         sol = np.asarray(sp.solution, dtype=float).ravel()
         v[f"special{j}_solution"] = ((f"special{j}_n",), sol)
         data = {k: x for k, x in sp.data.items() if k not in ("eigenvector", "p")}
-        specials.append({"kind": sp.kind, "param": sp.param, "index": sp.index,
-                         "bracket": list(sp.bracket), "precision": sp.precision,
-                         "status": sp.status, "data": _clean(data),
-                         "verification": _clean(sp.verification),
-                         "intervals": _clean(sp.intervals)})
-    attrs = {"kind": b.kind, "system": b.system, "param": b.param, "status": b.status,
-             "message": b.message, "signals": json.dumps(list(b.signals)),
-             "meta": json.dumps(_clean(b.meta)), "specials": json.dumps(specials),
-             "options": json.dumps(_clean(asdict(b.options)) if b.options else None),
-             "candidates": json.dumps(_clean([asdict(c) for c in b.candidates]))}
+        specials.append(
+            {
+                "kind": sp.kind,
+                "param": sp.param,
+                "index": sp.index,
+                "bracket": list(sp.bracket),
+                "precision": sp.precision,
+                "status": sp.status,
+                "data": _clean(data),
+                "verification": _clean(sp.verification),
+                "intervals": _clean(sp.intervals),
+            }
+        )
+    attrs = {
+        "kind": b.kind,
+        "system": b.system,
+        "param": b.param,
+        "status": b.status,
+        "message": b.message,
+        "signals": json.dumps(list(b.signals)),
+        "meta": json.dumps(_clean(b.meta)),
+        "specials": json.dumps(specials),
+        "options": json.dumps(_clean(asdict(b.options)) if b.options else None),
+        "candidates": json.dumps(_clean([asdict(c) for c in b.candidates])),
+    }
     v["p"] = (("parameter",), np.asarray(b.p, dtype=float).ravel())
     return xr.Dataset(v, attrs=attrs)
 
@@ -455,26 +512,46 @@ def _branch_from_dataset(ds: Any) -> Branch:
     n = ds.sizes.get("point", 0)
     specials = []
     for j, s in enumerate(json.loads(a["specials"])):
-        specials.append(SpecialPoint(
-            kind=s["kind"], param=float(s["param"]), index=int(s["index"]),
-            bracket=tuple(s["bracket"]), solution=ds[f"special{j}_solution"].values,
-            precision=math.nan if s["precision"] is None else float(s["precision"]),
-            status=s["status"], data=s["data"], verification=s["verification"],
-            intervals={k: tuple(x) for k, x in s["intervals"].items()}))
+        specials.append(
+            SpecialPoint(
+                kind=s["kind"],
+                param=float(s["param"]),
+                index=int(s["index"]),
+                bracket=tuple(s["bracket"]),
+                solution=ds[f"special{j}_solution"].values,
+                precision=math.nan if s["precision"] is None else float(s["precision"]),
+                status=s["status"],
+                data=s["data"],
+                verification=s["verification"],
+                intervals={k: tuple(x) for k, x in s["intervals"].items()},
+            )
+        )
     stable = ds["stable"].values if "stable" in ds else np.full(n, np.nan)
     if not np.any(np.isnan(stable)):
         stable = stable.astype(bool)
     lo, hi = _take(ds, "lo_"), _take(ds, "hi_")
     opts = json.loads(a.get("options", "null"))
     return Branch(
-        kind=a["kind"], system=a["system"], param=a["param"], params=ds["params"].values,
-        solutions=ds["solutions"].values, stable=stable, special_points=specials,
-        data=_take(ds, "data_"), p=ds["p"].values, status=a["status"], message=a["message"],
-        options=ContinuationOptions(**opts) if opts else None, meta=json.loads(a["meta"]),
-        signals=tuple(json.loads(a["signals"])), verification=_take(ds, "verification_"),
+        kind=a["kind"],
+        system=a["system"],
+        param=a["param"],
+        params=ds["params"].values,
+        solutions=ds["solutions"].values,
+        stable=stable,
+        special_points=specials,
+        data=_take(ds, "data_"),
+        p=ds["p"].values,
+        status=a["status"],
+        message=a["message"],
+        options=ContinuationOptions(**opts) if opts else None,
+        meta=json.loads(a["meta"]),
+        signals=tuple(json.loads(a["signals"])),
+        verification=_take(ds, "verification_"),
         intervals={k: (lo[k], hi[k]) for k in lo},
-        candidates=[Candidate(c["kind"], tuple(c["bracket"]), c["reason"], c["branch"])
-                    for c in json.loads(a.get("candidates", "[]"))],
+        candidates=[
+            Candidate(c["kind"], tuple(c["bracket"]), c["reason"], c["branch"])
+            for c in json.loads(a.get("candidates", "[]"))
+        ],
     )
 
 
@@ -483,5 +560,6 @@ def diagram_of(kind: DiagramKind, branches: Iterable[Branch], **kw: Any) -> Diag
     branches = list(branches)
     if not branches:
         raise BifidInputError("a diagram needs at least one branch.")
-    return Diagram(kind=kind, system=branches[0].system, param=branches[0].param,
-                   branches=branches, **kw)
+    return Diagram(
+        kind=kind, system=branches[0].system, param=branches[0].param, branches=branches, **kw
+    )

@@ -167,23 +167,26 @@ def _hopf_crossings(ya, yb, ea, eb, between, depth=0) -> list[tuple]:
             mixed = [(complex(ea[k]), complex(eb[int(np.argmin(np.abs(eb - ea[k])))]))]
         return [(ya, yb, a, b, False) for a, b in mixed if max(abs(a.imag), abs(b.imag)) > 0]
     em = between.eigenvalues(ym)
-    return (_hopf_crossings(ya, ym, ea, em, between, depth + 1)
-            + _hopf_crossings(ym, yb, em, eb, between, depth + 1))
+    return _hopf_crossings(ya, ym, ea, em, between, depth + 1) + _hopf_crossings(
+        ym, yb, em, eb, between, depth + 1
+    )
 
 
 class _Between:
     """Corrected branch points between two points: ``y(s)`` on the hyperplane through
     ``ya + s (yb - ya)`` normal to ``yb - ya``."""
 
-    def __init__(self, system: System, problem: ZeroProblem, args: dict, idx: int,
-                 tol: float) -> None:
+    def __init__(
+        self, system: System, problem: ZeroProblem, args: dict, idx: int, tol: float
+    ) -> None:
         self.system, self.problem, self.args, self.idx, self.tol = system, problem, args, idx, tol
 
     def at(self, ya: np.ndarray, yb: np.ndarray, s: float) -> np.ndarray | None:
         row = yb - ya
         y_pred = ya + s * row
-        y, ok, _, _ = correct(self.problem, y_pred, row, float(row @ y_pred), self.args,
-                              tol=self.tol)
+        y, ok, _, _ = correct(
+            self.problem, y_pred, row, float(row @ y_pred), self.args, tol=self.tol
+        )
         return y if ok else None
 
     def __call__(self, ya: np.ndarray, yb: np.ndarray) -> np.ndarray | None:
@@ -193,8 +196,7 @@ class _Between:
         return _eigenvalues(self.system.field, y[None, :], self.args["p"], self.idx)[0]
 
 
-def _locate_crossing(between: _Between, param: str, ya, yb, a: complex, b: complex
-                     ) -> SpecialPoint:
+def _locate_crossing(between: _Between, param: str, ya, yb, a: complex, b: complex) -> SpecialPoint:
     """The zero of the crossing eigenvalue's real part on the branch between ``ya`` and
     ``yb``: an Illinois (secant) search on ``s`` in ``y(s)``, following the eigenvalue to
     its nearest neighbour at each new point. Only first derivatives of the field are
@@ -206,8 +208,10 @@ def _locate_crossing(between: _Between, param: str, ya, yb, a: complex, b: compl
         s = (sa * fb - sb * fa) / (fb - fa) if fb != fa else 0.5 * (sa + sb)
         y = between.at(ya, yb, s)
         if y is None:
-            raise ConvergenceError(f"the branch could not be corrected near {param}="
-                                   f"{float((ya + s * (yb - ya))[-1]):.8g}")
+            raise ConvergenceError(
+                f"the branch could not be corrected near {param}="
+                f"{float((ya + s * (yb - ya))[-1]):.8g}"
+            )
         e = between.eigenvalues(y)
         lam = complex(e[int(np.argmin(np.abs(e - lam)))])
         y_best, best = y, lam
@@ -219,9 +223,12 @@ def _locate_crossing(between: _Between, param: str, ya, yb, a: complex, b: compl
             fb = fb / 2.0
         if abs(lam.real) <= 1e-15 * scale or abs(sb - sa) <= 1e-15:
             break
-    J = np.asarray(_batched_jacobian(between.system.field)(
-        jnp.asarray(y_best[None, :-1]),
-        jnp.asarray(between.args["p"]).at[between.idx].set(y_best[-1])[None, :]))[0]
+    J = np.asarray(
+        _batched_jacobian(between.system.field)(
+            jnp.asarray(y_best[None, :-1]),
+            jnp.asarray(between.args["p"]).at[between.idx].set(y_best[-1])[None, :],
+        )
+    )[0]
     w, V = np.linalg.eig(J)
     k = int(np.argmin(np.abs(w - best)))
     q, om = V[:, k], float(w[k].imag)
@@ -237,28 +244,41 @@ def _locate_crossing(between: _Between, param: str, ya, yb, a: complex, b: compl
     if slope > 0:
         prec = min(prec, 2.0 * abs(best.real) / slope)
     return SpecialPoint(
-        kind="hopf", param=float(y_best[-1]), index=-1, bracket=(float(ya[-1]), float(yb[-1])),
-        solution=np.asarray(y_best[:-1]), precision=prec + 1e-15 * max(1.0, abs(y_best[-1])),
-        data={"omega": om, "frequency_hz": om / (2 * np.pi), "eigenvector": q, "p": p_h,
-              "param_name": param},
+        kind="hopf",
+        param=float(y_best[-1]),
+        index=-1,
+        bracket=(float(ya[-1]), float(yb[-1])),
+        solution=np.asarray(y_best[:-1]),
+        precision=prec + 1e-15 * max(1.0, abs(y_best[-1])),
+        data={
+            "omega": om,
+            "frequency_hz": om / (2 * np.pi),
+            "eigenvector": q,
+            "p": p_h,
+            "param_name": param,
+        },
     )
 
 
 def _find_hopf(findings, system, param, ys, eigs, between) -> None:
     context = {"field": system.field}
     for i in range(len(ys) - 1):
-        for ya, yb, a, b, clear in _hopf_crossings(ys[i], ys[i + 1], eigs[i], eigs[i + 1],
-                                                   between):
+        for ya, yb, a, b, clear in _hopf_crossings(ys[i], ys[i + 1], eigs[i], eigs[i + 1], between):
             result = findings.confirm(
-                "hopf", (float(ys[i][-1]), float(ys[i + 1][-1])),
+                "hopf",
+                (float(ys[i][-1]), float(ys[i + 1][-1])),
                 lambda ya=ya, yb=yb, a=a, b=b: _locate_crossing(between, param, ya, yb, a, b),
-                context=context, index=i, slack=float(np.max(np.abs(ys[i + 1] - ys[i]))),
+                context=context,
+                index=i,
+                slack=float(np.max(np.abs(ys[i + 1] - ys[i]))),
             )
             if isinstance(result, SpecialPoint):
                 add_lyapunov(system.field, result)
             elif not clear:
-                result.reason = ("an eigenvalue crossed the imaginary axis next to a collision "
-                                 f"of eigenvalues; {result.reason}")
+                result.reason = (
+                    "an eigenvalue crossed the imaginary axis next to a collision "
+                    f"of eigenvalues; {result.reason}"
+                )
 
 
 def equilibria(
@@ -332,33 +352,67 @@ def equilibria(
     # arclength: the states relative to the size of the starting equilibrium (at least 1)
     scale = max(1.0, float(np.max(np.abs(y_c[:-1]))))
     weights = np.concatenate([np.full(system.n_states, scale**-2), [1.0]])
-    result = palc(problem, y_c, t0, args, options, progress=progress, correct_start=False,
-                  param_name=param, weights=weights)
+    result = palc(
+        problem,
+        y_c,
+        t0,
+        args,
+        options,
+        progress=progress,
+        correct_start=False,
+        param_name=param,
+        weights=weights,
+    )
     ys = result.ys
     eigs = _eigenvalues(system.field, ys, p, idx)
     params = ys[:, -1]
     findings = Findings()
     if options.detect_bifurcations:
-        _find_hopf(findings, system, param, ys, eigs,
-                   _Between(system, problem, args, idx, options.newton_tol))
+        _find_hopf(
+            findings,
+            system,
+            param,
+            ys,
+            eigs,
+            _Between(system, problem, args, idx, options.newton_tol),
+        )
     if options.detect_folds:
-        report_folds(findings, result, params,
-                     lambda i, y_f, prec: SpecialPoint(kind="fold", param=float(y_f[-1]), index=i,
-                                                       bracket=(params[i], params[i + 1]),
-                                                       solution=y_f[:-1], precision=prec),
-                     {"problem": problem, "args": args})
+        report_folds(
+            findings,
+            result,
+            params,
+            lambda i, y_f, prec: SpecialPoint(
+                kind="fold",
+                param=float(y_f[-1]),
+                index=i,
+                bracket=(params[i], params[i + 1]),
+                solution=y_f[:-1],
+                precision=prec,
+            ),
+            {"problem": problem, "args": args},
+        )
     for i in result.branch_points:
-        findings.flag("branch_point", (params[i], params[i + 1]),
-                      "det [G_y; t^T] changed sign: a branch point (branch points are flagged, "
-                      "not located)")
-    residual = np.max(np.abs(np.asarray(_batched_residual(problem)(jnp.asarray(ys), args))),
-                      axis=1)
+        findings.flag(
+            "branch_point",
+            (params[i], params[i + 1]),
+            "det [G_y; t^T] changed sign: a branch point (branch points are flagged, not located)",
+        )
+    residual = np.max(np.abs(np.asarray(_batched_residual(problem)(jnp.asarray(ys), args))), axis=1)
     return Branch(
-        kind="equilibrium", system=system.name, param=param, params=params,
-        solutions=ys[:, :-1], stable=np.all(eigs.real < 0, axis=1),
+        kind="equilibrium",
+        system=system.name,
+        param=param,
+        params=params,
+        solutions=ys[:, :-1],
+        stable=np.all(eigs.real < 0, axis=1),
         special_points=findings.sorted_points(),
-        data={"eigenvalues": eigs, "state": ys[:, :-1]}, p=np.asarray(p),
-        status=result.status, message=result.message, options=options,
-        signals=tuple(system.states), meta={"states": list(system.states)},
-        verification={"residual": residual}, candidates=findings.candidates,
+        data={"eigenvalues": eigs, "state": ys[:, :-1]},
+        p=np.asarray(p),
+        status=result.status,
+        message=result.message,
+        options=options,
+        signals=tuple(system.states),
+        meta={"states": list(system.states)},
+        verification={"residual": residual},
+        candidates=findings.candidates,
     )

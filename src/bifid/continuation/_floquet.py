@@ -103,8 +103,9 @@ class Floquet:
     @property
     def log_max(self) -> np.ndarray:
         """Largest non-trivial ``log|mu|`` of each orbit (NaN where it failed)."""
-        out = np.array([np.max(self.nontrivial(i)[1], initial=-np.inf)
-                        for i in range(len(self.ok))])
+        out = np.array(
+            [np.max(self.nontrivial(i)[1], initial=-np.inf) for i in range(len(self.ok))]
+        )
         out[~self.ok] = np.nan
         return out
 
@@ -141,10 +142,15 @@ def _factors_fn(rhs: Callable, n_factors: int) -> Callable:
             t0 = T * j / n_factors
             t1 = T * (j + 1) / n_factors
             sol = diffrax.diffeqsolve(
-                diffrax.ODETerm(vf), diffrax.Dopri8(), t0=t0, t1=t1, dt0=(t1 - t0) / 4,
+                diffrax.ODETerm(vf),
+                diffrax.Dopri8(),
+                t0=t0,
+                t1=t1,
+                dt0=(t1 - t0) / 4,
                 y0=(x0, jnp.eye(n)),
                 stepsize_controller=diffrax.PIDController(rtol=_RTOL, atol=_ATOL),
-                max_steps=4096, throw=False,
+                max_steps=4096,
+                throw=False,
             )
             return sol.ys[1][-1], sol.result == diffrax.RESULTS.successful
 
@@ -177,13 +183,13 @@ def _pad(n_orb: int) -> np.ndarray:
 def _samples(orbits: Sequence[np.ndarray], n_samples: int) -> np.ndarray:
     """Each orbit's trigonometric interpolant at ``t_j = T j / n_samples``."""
     tau = 2.0 * np.pi * np.arange(n_samples) / n_samples
-    return np.stack([evaluate_fourier(*fourier_coefficients(np.asarray(o, dtype=float)), tau)
-                     for o in orbits])
+    return np.stack(
+        [evaluate_fourier(*fourier_coefficients(np.asarray(o, dtype=float)), tau) for o in orbits]
+    )
 
 
 def monodromy_factors(
-    rhs: Callable, orbits: np.ndarray | Sequence[np.ndarray], periods: np.ndarray,
-    ps: np.ndarray
+    rhs: Callable, orbits: np.ndarray | Sequence[np.ndarray], periods: np.ndarray, ps: np.ndarray
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The factors ``Phi_j`` of the monodromy matrices of a batch of orbits (each orbit
     ``(M_i, n)`` on its own mesh).
@@ -201,13 +207,13 @@ def monodromy_factors(
     n_orb = len(orbits)
     idx = _pad(n_orb)
     coarse = _samples(orbits, _SPREAD_SAMPLES)
-    spread = np.asarray(_spread_fn(rhs)(jnp.asarray(coarse[idx]), jnp.asarray(periods[idx]),
-                                        jnp.asarray(ps[idx])))[:n_orb]
+    spread = np.asarray(
+        _spread_fn(rhs)(jnp.asarray(coarse[idx]), jnp.asarray(periods[idx]), jnp.asarray(ps[idx]))
+    )[:n_orb]
     need = float(np.nanmax(np.abs(periods) * spread)) / _FACTOR_GROWTH if n_orb else 1.0
     if not math.isfinite(need):
         need = _MAX_FACTORS
-    n_factors = int(min(max(_MIN_FACTORS, 1 << math.ceil(math.log2(max(need, 1.0)))),
-                        _MAX_FACTORS))
+    n_factors = int(min(max(_MIN_FACTORS, 1 << math.ceil(math.log2(max(need, 1.0)))), _MAX_FACTORS))
     # each factor integrates the orbit with its variational equation from the orbit's
     # trigonometric interpolant at t_j (cheap for any mesh; the sub-intervals are short)
     starts = _samples(orbits, n_factors)
@@ -258,8 +264,9 @@ def _scaled_product(blocks: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return P, s
 
 
-def _cluster_eigenvalues(B: np.ndarray, Rs: np.ndarray, a: int, b: int
-                         ) -> tuple[np.ndarray, np.ndarray]:
+def _cluster_eigenvalues(
+    B: np.ndarray, Rs: np.ndarray, a: int, b: int
+) -> tuple[np.ndarray, np.ndarray]:
     """Log-moduli and phases of the eigenvalues of the diagonal block ``[a, b)`` of
     ``B R`` for a batch of orbits (the block of a product of triangular matrices is the
     product of their blocks)."""
@@ -278,8 +285,9 @@ def _cluster_eigenvalues(B: np.ndarray, Rs: np.ndarray, a: int, b: int
     return logm, phase
 
 
-def periodic_eigenvalues(factors: np.ndarray, first: np.ndarray | None = None
-                         ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def periodic_eigenvalues(
+    factors: np.ndarray, first: np.ndarray | None = None
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Eigenvalues of products ``factors[:, K-1] @ ... @ factors[:, 0]`` without forming
     them (periodic orthogonal iteration, module docstring).
 
@@ -356,8 +364,9 @@ def floquet(
     n_orb = len(orbits)
     n = int(np.shape(orbits[0])[1]) if n_orb else 0
     if n_orb == 0:
-        return Floquet(np.empty((0, n), complex), np.empty((0, n)), np.empty(0, int),
-                       np.empty(0, bool))
+        return Floquet(
+            np.empty((0, n), complex), np.empty((0, n)), np.empty(0, int), np.empty(0, bool)
+        )
     factors, ok, f0 = monodromy_factors(rhs, orbits, periods, ps)
     good = ok & np.all(np.isfinite(f0), axis=1)
     if autonomous:
@@ -444,16 +453,20 @@ def floquet_multipliers(
         Largest modulus among the non-trivial multipliers (NaN where it failed).
     """
     orbits, periods, ps = np.asarray(orbits), np.asarray(periods), np.asarray(ps)
-    if orbits.ndim != 3 or periods.shape != orbits.shape[:1] or ps.ndim != 2 \
-            or ps.shape[0] != orbits.shape[0]:
+    if (
+        orbits.ndim != 3
+        or periods.shape != orbits.shape[:1]
+        or ps.ndim != 2
+        or ps.shape[0] != orbits.shape[0]
+    ):
         raise BifidInputError(
             "floquet_multipliers expects orbits (K, M, n), periods (K,) and parameter "
             f"vectors (K, P); got shapes {orbits.shape}, {periods.shape}, {ps.shape}."
         )
-    if not (np.all(np.isfinite(orbits)) and np.all(np.isfinite(periods))
-            and np.all(periods > 0)):
-        raise BifidInputError("floquet_multipliers needs finite orbits and positive finite "
-                              "periods.")
+    if not (np.all(np.isfinite(orbits)) and np.all(np.isfinite(periods)) and np.all(periods > 0)):
+        raise BifidInputError(
+            "floquet_multipliers needs finite orbits and positive finite periods."
+        )
     fl = floquet(rhs, orbits, periods, ps, autonomous=autonomous)
     label = fl.stable()
     return fl.multipliers, np.nan_to_num(label, nan=0.0).astype(bool), fl.floquet_max

@@ -49,13 +49,18 @@ def verify_fold(point: SpecialPoint, context: Mapping[str, Any]) -> Verdict:
     t = vt[-1]
     t = t / np.sqrt(t @ (w * t))
     s_u = np.linalg.svd(np.delete(Gy, pi, axis=1), compute_uv=False)
-    return Verdict((
-        Check.at_most("residual", float(np.max(np.abs(G))),
-                      FOLD_RESIDUAL_TOL * (1.0 + float(np.max(np.abs(y))))),
-        Check.at_most("tangent_param", float(t[pi]), FOLD_TANGENT_TOL),
-        Check.at_most("null_vector", float(s_u[-1]) / max(1.0, float(s_u[0])), FOLD_NULL_TOL),
-        Check.at_least("rank_margin", float(s_full[-1]) / float(s_full[0]), FOLD_RANK_MIN),
-    ))
+    return Verdict(
+        (
+            Check.at_most(
+                "residual",
+                float(np.max(np.abs(G))),
+                FOLD_RESIDUAL_TOL * (1.0 + float(np.max(np.abs(y)))),
+            ),
+            Check.at_most("tangent_param", float(t[pi]), FOLD_TANGENT_TOL),
+            Check.at_most("null_vector", float(s_u[-1]) / max(1.0, float(s_u[0])), FOLD_NULL_TOL),
+            Check.at_least("rank_margin", float(s_full[-1]) / float(s_full[0]), FOLD_RANK_MIN),
+        )
+    )
 
 
 def report_folds(
@@ -91,11 +96,18 @@ def report_folds(
     for i, y_f, prec in result.folds:
         k = i + offset
         step = float(np.max(np.abs(result.ys[i + 1] - result.ys[i])))
-        findings.confirm(kind, (params[k], params[k + 1]),
-                         lambda i=i, y_f=y_f, prec=prec: point_of(i, y_f, prec),
-                         context={**context, "y": y_f}, index=k, slack=step)
+        findings.confirm(
+            kind,
+            (params[k], params[k + 1]),
+            lambda i=i, y_f=y_f, prec=prec: point_of(i, y_f, prec),
+            context={**context, "y": y_f},
+            index=k,
+            slack=step,
+        )
     for i in result.fold_failures:
         k = i + offset
-        findings.flag(kind, (params[k], params[k + 1]),
-                      "the parameter turned between these points but the fold could not be "
-                      "located")
+        findings.flag(
+            kind,
+            (params[k], params[k + 1]),
+            "the parameter turned between these points but the fold could not be located",
+        )

@@ -81,8 +81,9 @@ def forced_rhs(system: System, forcing: tuple[float, ...] | None = None) -> Call
 
 
 @functools.lru_cache(maxsize=32)
-def forced_problem(system: System, n_mesh: int, n_free: int,
-                   forcing: tuple[float, ...] | None = None) -> ZeroProblem:
+def forced_problem(
+    system: System, n_mesh: int, n_free: int, forcing: tuple[float, ...] | None = None
+) -> ZeroProblem:
     """Collocation problem of forced responses.
 
     ``y = [v (M*n), lam_1..lam_nfree]``; ``args = {"p", "idx" (n_free,), "obs"}``. With
@@ -135,8 +136,14 @@ def forced_problem(system: System, n_mesh: int, n_free: int,
     return ZeroProblem(residual=residual, param_index=M * n, jacobian=jacobian)
 
 
-def forced_stage(system: System, M: int, n_free: int, args: dict, span: float,
-                 forcing: tuple[float, ...] | None = None) -> Stage:
+def forced_stage(
+    system: System,
+    M: int,
+    n_free: int,
+    args: dict,
+    span: float,
+    forcing: tuple[float, ...] | None = None,
+) -> Stage:
     """The collocation problem of forced responses on ``M`` points (``_mesh.Stage``).
 
     Arclength weights: mesh values as an RMS over the period, each free parameter
@@ -144,12 +151,16 @@ def forced_stage(system: System, M: int, n_free: int, args: dict, span: float,
     parameter crosses ``span``" whatever the parameter's scale."""
     n = system.n_states
     w = np.concatenate([np.full(M * n, 1.0 / M), np.full(n_free, 1.0 / span**2)])
-    return Stage(problem=forced_problem(system, M, n_free, forcing), weights=w,
-                 args=lambda y, prev=None: args)
+    return Stage(
+        problem=forced_problem(system, M, n_free, forcing),
+        weights=w,
+        args=lambda y, prev=None: args,
+    )
 
 
-def harmonic_monitor(n: int, change: float = HARMONIC_CHANGE, floor: float = HARMONIC_FLOOR
-                     ) -> Callable[[np.ndarray, np.ndarray, int], float]:
+def harmonic_monitor(
+    n: int, change: float = HARMONIC_CHANGE, floor: float = HARMONIC_FLOOR
+) -> Callable[[np.ndarray, np.ndarray, int], float]:
     """Step control on the harmonic content (module docstring): ``(y, y_new, M) ->
     factor``, ``< 1`` rejects the step."""
 
@@ -168,10 +179,19 @@ def harmonic_monitor(n: int, change: float = HARMONIC_CHANGE, floor: float = HAR
     return monitor
 
 
-def forced_branch(system: System, kind: str, param: str, run: AdaptiveRun, p, idx_free,
-                  options: ContinuationOptions, policy: MeshPolicy, observed: str,
-                  stage_of: Callable[[int], Stage], forcing: tuple[float, ...] | None = None
-                  ) -> Branch:
+def forced_branch(
+    system: System,
+    kind: str,
+    param: str,
+    run: AdaptiveRun,
+    p,
+    idx_free,
+    options: ContinuationOptions,
+    policy: MeshPolicy,
+    observed: str,
+    stage_of: Callable[[int], Stage],
+    forcing: tuple[float, ...] | None = None,
+) -> Branch:
     """Assemble the :class:`Branch` of an adaptive run of forced responses."""
     n = system.n_states
     obs = system.state_index(observed)
@@ -183,10 +203,13 @@ def forced_branch(system: System, kind: str, param: str, run: AdaptiveRun, p, id
     omega = ps[:, system.index("Omega")]
     forcing_amp = ps[:, system.index("F")]
     periods = 2.0 * np.pi / omega
-    fl = floquet(forced_rhs(system, forcing),
-                 [np.asarray(y[: m * n]).reshape(m, n)
-                  for y, m in zip(run.ys, run.meshes, strict=True)],
-                 periods, ps, autonomous=False)
+    fl = floquet(
+        forced_rhs(system, forcing),
+        [np.asarray(y[: m * n]).reshape(m, n) for y, m in zip(run.ys, run.meshes, strict=True)],
+        periods,
+        ps,
+        autonomous=False,
+    )
     mults, logm, label = fl.multipliers, fl.log_moduli, fl.stable()
     stable = label.astype(bool) if np.all(np.isfinite(label)) else label
     amps = np.array([max_abs(o) for o in orbits])
@@ -201,24 +224,53 @@ def forced_branch(system: System, kind: str, param: str, run: AdaptiveRun, p, id
     if kind == "forced":
         _report_peaks(findings, system, run, params, stage_of, obs)
         # period doubling, torus and branch points of the responses, on the multipliers
-        ctx = BracketContext(system=system, param=param, p=np.asarray(p), idx=idx_free[0],
-                             run=run, stage_of=stage_of, floquet=fl,
-                             zero=np.zeros(len(run.ys), bool),
-                             forced_rhs=forced_rhs(system, forcing))
+        ctx = BracketContext(
+            system=system,
+            param=param,
+            p=np.asarray(p),
+            idx=idx_free[0],
+            run=run,
+            stage_of=stage_of,
+            floquet=fl,
+            zero=np.zeros(len(run.ys), bool),
+            forced_rhs=forced_rhs(system, forcing),
+        )
         find_orbit_special_points(findings, ctx, params)
     residual = run_residuals(run, stage_of)
     tails = np.asarray(run.tails)
     return Branch(
-        kind=kind, system=system.name, param=param, params=params,
-        solutions=ys[:, : M * n], stable=stable, special_points=findings.sorted_points(),
-        data={"amplitude": amps, "observed_amplitude": amps[:, obs], "phase": phase,
-              "omega": omega, "forcing": forcing_amp, "period": periods, "floquet": mults,
-              "floquet_log": logm, "floquet_max": np.exp(np.nanmax(logm, axis=1)),
-              "spectral_tail": tails, "n_mesh": np.asarray(run.meshes)},
-        p=np.asarray(p), status=run.status, message=run.message, options=options,
+        kind=kind,
+        system=system.name,
+        param=param,
+        params=params,
+        solutions=ys[:, : M * n],
+        stable=stable,
+        special_points=findings.sorted_points(),
+        data={
+            "amplitude": amps,
+            "observed_amplitude": amps[:, obs],
+            "phase": phase,
+            "omega": omega,
+            "forcing": forcing_amp,
+            "period": periods,
+            "floquet": mults,
+            "floquet_log": logm,
+            "floquet_max": np.exp(np.nanmax(logm, axis=1)),
+            "spectral_tail": tails,
+            "n_mesh": np.asarray(run.meshes),
+        },
+        p=np.asarray(p),
+        status=run.status,
+        message=run.message,
+        options=options,
         signals=tuple(system.states),
-        meta={"n_mesh": int(M), "states": list(system.states), "observed": observed,
-              "max_mesh": policy.max_mesh, "resolution_tol": policy.tol},
+        meta={
+            "n_mesh": int(M),
+            "states": list(system.states),
+            "observed": observed,
+            "max_mesh": policy.max_mesh,
+            "resolution_tol": policy.tol,
+        },
         verification={"residual": residual, "spectral_tail": tails},
         candidates=findings.candidates,
     )
@@ -232,23 +284,43 @@ def _report_folds(findings, system, run, params, p, stage_of, obs) -> None:
             continue
         bracket = (params[i], params[i + 1])
         if y_f is None:
-            findings.flag("fold", bracket, "the parameter turned between these points but the "
-                          "fold could not be located")
+            findings.flag(
+                "fold",
+                bracket,
+                "the parameter turned between these points but the fold could not be located",
+            )
             continue
         stage = stage_of(M)
         q = np.asarray(stage.args(y_f)["p"]).copy()
-        q[np.asarray(stage.args(y_f)["idx"])] = y_f[M * n:]
+        q[np.asarray(stage.args(y_f)["idx"])] = y_f[M * n :]
         V = np.asarray(y_f[: M * n]).reshape(M, n)
-        point = SpecialPoint(kind="fold", param=float(y_f[M * n]), index=i, bracket=bracket,
-                             solution=np.asarray(y_f), precision=prec,
-                             data={"amplitude": float(max_abs(V[:, obs])),
-                                   "omega": float(q[iOm]), "forcing": float(q[iF]),
-                                   "n_mesh": int(M)})
-        findings.confirm("fold", bracket, lambda point=point: point,
-                         context={"problem": stage.problem, "args": stage.args(y_f),
-                                  "weights": stage.weights, "y": y_f}, index=i,
-                         slack=bracket_slack(run.ys[i], run.meshes[i], run.ys[i + 1],
-                                             run.meshes[i + 1], n))
+        point = SpecialPoint(
+            kind="fold",
+            param=float(y_f[M * n]),
+            index=i,
+            bracket=bracket,
+            solution=np.asarray(y_f),
+            precision=prec,
+            data={
+                "amplitude": float(max_abs(V[:, obs])),
+                "omega": float(q[iOm]),
+                "forcing": float(q[iF]),
+                "n_mesh": int(M),
+            },
+        )
+        findings.confirm(
+            "fold",
+            bracket,
+            lambda point=point: point,
+            context={
+                "problem": stage.problem,
+                "args": stage.args(y_f),
+                "weights": stage.weights,
+                "y": y_f,
+            },
+            index=i,
+            slack=bracket_slack(run.ys[i], run.meshes[i], run.ys[i + 1], run.meshes[i + 1], n),
+        )
 
 
 @register_verifier("peak")
@@ -257,16 +329,21 @@ def verify_peak(point: SpecialPoint, context) -> Verdict:
     amplitude at its located neighbours (``context["neighbours"]``)."""
     a = float(point.data["amplitude"])
     excess = max(0.0, max(context["neighbours"]) - a)
-    return Verdict((residual_check(context),
-                    Check.at_most("neighbour_excess", excess, 1e-10 * max(1.0, a))))
+    return Verdict(
+        (residual_check(context), Check.at_most("neighbour_excess", excess, 1e-10 * max(1.0, a)))
+    )
 
 
 def _report_peaks(findings, system, run, params, stage_of, obs) -> None:
     """Locate each interior local maximum of the observed amplitude (golden-section
     search along the arcs on both sides of the largest point)."""
     n = system.n_states
-    amp = np.array([max_abs(np.asarray(y[: m * n]).reshape(m, n)[:, obs])
-                    for y, m in zip(run.ys, run.meshes, strict=True)])
+    amp = np.array(
+        [
+            max_abs(np.asarray(y[: m * n]).reshape(m, n)[:, obs])
+            for y, m in zip(run.ys, run.meshes, strict=True)
+        ]
+    )
     for i in range(1, len(amp) - 1):
         if not (amp[i] > amp[i - 1] and amp[i] >= amp[i + 1]):
             continue
@@ -277,13 +354,28 @@ def _report_peaks(findings, system, run, params, stage_of, obs) -> None:
                 best = found
         a, y, M, prec = best
         bracket = (params[i - 1], params[i + 1])
-        point = SpecialPoint(kind="peak", param=float(y[M * n]), index=i, bracket=bracket,
-                             solution=np.asarray(y), precision=prec,
-                             data={"amplitude": float(a), "n_mesh": int(M)})
+        point = SpecialPoint(
+            kind="peak",
+            param=float(y[M * n]),
+            index=i,
+            bracket=bracket,
+            solution=np.asarray(y),
+            precision=prec,
+            data={"amplitude": float(a), "n_mesh": int(M)},
+        )
         stage = stage_of(M)
-        findings.confirm("peak", bracket, lambda point=point: point,
-                         context={"problem": stage.problem, "args": stage.args(y), "y": y,
-                                  "neighbours": (amp[i - 1], amp[i + 1])}, index=i)
+        findings.confirm(
+            "peak",
+            bracket,
+            lambda point=point: point,
+            context={
+                "problem": stage.problem,
+                "args": stage.args(y),
+                "y": y,
+                "neighbours": (amp[i - 1], amp[i + 1]),
+            },
+            index=i,
+        )
 
 
 def _golden_max(system, run, j, stage_of, obs, iters: int = 40):
@@ -372,8 +464,21 @@ def frc(
     """
     if not math.isfinite(forcing):
         raise BifidInputError(f"forcing must be finite, got {forcing!r}.")
-    return _one_parameter(system, "Omega", omega_range, {"F": forcing}, p, n_mesh, max_mesh,
-                          adapt, options, observed, progress, resolution_tol, "FRC")
+    return _one_parameter(
+        system,
+        "Omega",
+        omega_range,
+        {"F": forcing},
+        p,
+        n_mesh,
+        max_mesh,
+        adapt,
+        options,
+        observed,
+        progress,
+        resolution_tol,
+        "FRC",
+    )
 
 
 def scurve(
@@ -394,18 +499,45 @@ def scurve(
     options as in :func:`frc`)."""
     if not (math.isfinite(omega) and omega > 0):
         raise BifidInputError(f"omega must be a positive finite number, got {omega!r}.")
-    return _one_parameter(system, "F", forcing_range, {"Omega": omega}, p, n_mesh, max_mesh,
-                          adapt, options, observed, progress, resolution_tol, "S-curve")
+    return _one_parameter(
+        system,
+        "F",
+        forcing_range,
+        {"Omega": omega},
+        p,
+        n_mesh,
+        max_mesh,
+        adapt,
+        options,
+        observed,
+        progress,
+        resolution_tol,
+        "S-curve",
+    )
 
 
-def _one_parameter(system, param, rng, fixed, p, n_mesh, max_mesh, adapt, options, observed,
-                   progress, resolution_tol, what) -> Branch:
+def _one_parameter(
+    system,
+    param,
+    rng,
+    fixed,
+    p,
+    n_mesh,
+    max_mesh,
+    adapt,
+    options,
+    observed,
+    progress,
+    resolution_tol,
+    what,
+) -> Branch:
     """Continuation of forced responses in ``param`` ("Omega" or "F") over ``rng``."""
     _require_forced(system)
     lo, hi = check_range(f"{'omega' if param == 'Omega' else 'forcing'} range", *rng)
     if param == "Omega" and min(lo, hi) <= 0:
-        raise BifidInputError(f"the omega range must be positive (a forcing frequency), got "
-                              f"{lo:g}, {hi:g}.")
+        raise BifidInputError(
+            f"the omega range must be positive (a forcing frequency), got {lo:g}, {hi:g}."
+        )
     if param == "F" and min(lo, hi) < 0:
         raise BifidInputError(f"the forcing range must not be negative, got {lo:g}, {hi:g}.")
     direction = 1 if hi > lo else -1
@@ -418,8 +550,11 @@ def _one_parameter(system, param, rng, fixed, p, n_mesh, max_mesh, adapt, option
     p = p.at[i_lam].set(lo)
     options = options or ContinuationOptions(ds=0.01, ds_min=1e-10, ds_max=0.1, max_steps=2000)
     options = options.with_(p_min=min(lo, hi), p_max=max(lo, hi), direction=direction)
-    args = {"p": jnp.asarray(p), "idx": jnp.asarray([i_lam]),
-            "obs": jnp.asarray(system.state_index(system.observed))}
+    args = {
+        "p": jnp.asarray(p),
+        "idx": jnp.asarray([i_lam]),
+        "obs": jnp.asarray(system.state_index(system.observed)),
+    }
     span = abs(hi - lo)
 
     def stage_of(M):
@@ -429,16 +564,18 @@ def _one_parameter(system, param, rng, fixed, p, n_mesh, max_mesh, adapt, option
     y0 = np.concatenate([_linear_response(system, p, M).ravel(), [lo]])
     e = np.zeros_like(y0)
     e[-1] = 1.0
-    y0, ok, _, res = correct(stage_of(M).problem, y0, e, lo, args, tol=options.newton_tol,
-                             max_iter=30)
+    y0, ok, _, res = correct(
+        stage_of(M).problem, y0, e, lo, args, tol=options.newton_tol, max_iter=30
+    )
     while ok and mesh_tail(y0, M, n) > resolution_tol and policy.finer(M):
         M_new = policy.finer(M)
         y1 = remesh(y0, M, M_new, n)
         M = M_new
         e = np.zeros_like(y1)
         e[-1] = 1.0
-        y0, ok, _, res = correct(stage_of(M).problem, y1, e, lo, args,
-                                 tol=options.newton_tol, max_iter=30)
+        y0, ok, _, res = correct(
+            stage_of(M).problem, y1, e, lo, args, tol=options.newton_tol, max_iter=30
+        )
     if not ok or mesh_tail(y0, M, n) > resolution_tol:
         raise ConvergenceError(
             f"No resolved periodic response of {system.name!r} found at the start of the "
@@ -448,7 +585,18 @@ def _one_parameter(system, param, rng, fixed, p, n_mesh, max_mesh, adapt, option
         )
     t0 = np.zeros_like(y0)
     t0[-1] = direction
-    run = run_adaptive(stage_of, y0, t0, policy, options, n, M0=M,
-                       monitor=harmonic_monitor(n), progress=progress)
-    return forced_branch(system, "forced", param, run, p, [i_lam], options, policy,
-                         observed or system.observed, stage_of)
+    run = run_adaptive(
+        stage_of, y0, t0, policy, options, n, M0=M, monitor=harmonic_monitor(n), progress=progress
+    )
+    return forced_branch(
+        system,
+        "forced",
+        param,
+        run,
+        p,
+        [i_lam],
+        options,
+        policy,
+        observed or system.observed,
+        stage_of,
+    )

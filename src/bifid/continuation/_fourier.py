@@ -46,4 +46,3 @@ def fourier_differentiation_matrix(n_mesh: int) -> np.ndarray:
 def _check_mesh(n_mesh: int) -> None:
     if not isinstance(n_mesh, (int, np.integer)) or n_mesh < 8 or n_mesh % 2:
         raise BifidInputError(f"n_mesh must be an even integer >= 8, got {n_mesh!r}.")
-

@@ -184,8 +184,9 @@ def first_lyapunov_coefficient(field: Callable, x: Array, p: Array, omega: float
     q = q / np.linalg.norm(q)
     pq = np.vdot(pv, q)
     if abs(pq) < 1e-12:
-        raise ConvergenceError("the first Lyapunov coefficient is undefined: the critical "
-                               "eigenvalue is not simple")
+        raise ConvergenceError(
+            "the first Lyapunov coefficient is undefined: the critical eigenvalue is not simple"
+        )
     pv = pv / np.conj(pq)  # <p, q> = conj(p) . q = 1
     Bj, Cj = multilinear_forms(field)
 
@@ -227,8 +228,15 @@ def critical_pair(J: np.ndarray, omega_guess: float | None = None) -> tuple[comp
     return complex(lam_c), v
 
 
-def newton_hopf(system: System, param: str, x_guess: np.ndarray, lam_guess: float, p: Array,
-                *, omega_guess: float | None = None) -> SpecialPoint:
+def newton_hopf(
+    system: System,
+    param: str,
+    x_guess: np.ndarray,
+    lam_guess: float,
+    p: Array,
+    *,
+    omega_guess: float | None = None,
+) -> SpecialPoint:
     """Newton on the defining system from a guess; the point is *not* verified.
 
     Raises
@@ -247,8 +255,7 @@ def newton_hopf(system: System, param: str, x_guess: np.ndarray, lam_guess: floa
     g = v / np.linalg.norm(v)
     vn = v / np.vdot(g, v)  # normalised so that <g, v> = 1
     z0 = np.concatenate([x_guess, [lam_guess, lam_c.imag], vn.real, vn.imag])
-    args = {"p": p, "idx": jnp.asarray(idx), "g_r": jnp.asarray(g.real),
-            "g_i": jnp.asarray(g.imag)}
+    args = {"p": p, "idx": jnp.asarray(idx), "g_r": jnp.asarray(g.real), "g_i": jnp.asarray(g.imag)}
     z, err, res, scale = (np.asarray(a) for a in newton(jnp.asarray(z0), args))
     n = len(x_guess)
     if not (np.all(np.isfinite(z)) and float(res) < 1e-9 * float(scale)):
@@ -260,10 +267,19 @@ def newton_hopf(system: System, param: str, x_guess: np.ndarray, lam_guess: floa
     q = z[n + 2 : 2 * n + 2] + 1j * z[2 * n + 2 :]
     p_h = with_param(p, idx, lam)
     return SpecialPoint(
-        kind="hopf", param=lam, index=-1, bracket=(lam, lam), solution=x,
+        kind="hopf",
+        param=lam,
+        index=-1,
+        bracket=(lam, lam),
+        solution=x,
         precision=float(err) + 1e-14 * float(scale),
-        data={"omega": om, "frequency_hz": om / (2 * np.pi), "eigenvector": q,
-              "p": np.asarray(p_h), "param_name": param},
+        data={
+            "omega": om,
+            "frequency_hz": om / (2 * np.pi),
+            "eigenvector": q,
+            "p": np.asarray(p_h),
+            "param_name": param,
+        },
         verification={"defining_system_residual": float(res)},
     )
 
@@ -272,8 +288,9 @@ def add_lyapunov(field: Callable, point: SpecialPoint) -> SpecialPoint:
     """Fill in ``lyapunov`` and ``criticality`` of a verified Hopf point (``unknown`` where
     ``l1`` is undefined, with the reason in ``verification["lyapunov"]``)."""
     try:
-        l1 = first_lyapunov_coefficient(field, jnp.asarray(point.solution),
-                                        jnp.asarray(point.data["p"]), point.data["omega"])
+        l1 = first_lyapunov_coefficient(
+            field, jnp.asarray(point.solution), jnp.asarray(point.data["p"]), point.data["omega"]
+        )
     except ConvergenceError as exc:
         point.data.update(lyapunov=math.nan, criticality="unknown")
         point.verification["lyapunov"] = str(exc)
@@ -298,12 +315,14 @@ def verify_hopf(point: SpecialPoint, context: Mapping[str, Any]) -> Verdict:
     om = float(point.data["omega"])
     k = int(np.argmin(np.abs(eig - 1j * om)))
     xscale = 1.0 + float(np.max(np.abs(np.asarray(point.solution))))
-    return Verdict((
-        Check.at_most("residual", float(np.max(np.abs(f))), 1e-8 * xscale),
-        Check.at_most("real_part", float(eig[k].real), HOPF_REAL_TOL * s),
-        Check.at_most("omega_mismatch", float(eig[k].imag) - om, HOPF_REAL_TOL * s),
-        Check.at_least("omega", om, HOPF_OMEGA_MIN * s),
-    ))
+    return Verdict(
+        (
+            Check.at_most("residual", float(np.max(np.abs(f))), 1e-8 * xscale),
+            Check.at_most("real_part", float(eig[k].real), HOPF_REAL_TOL * s),
+            Check.at_most("omega_mismatch", float(eig[k].imag) - om, HOPF_REAL_TOL * s),
+            Check.at_least("omega", om, HOPF_OMEGA_MIN * s),
+        )
+    )
 
 
 def locate_hopf(
@@ -345,9 +364,11 @@ def locate_hopf(
         If Newton does not converge or the point is not verified as a Hopf point.
     """
     result = confirm(
-        "hopf", bracket or (lam_guess, lam_guess),
+        "hopf",
+        bracket or (lam_guess, lam_guess),
         lambda: newton_hopf(system, param, x_guess, lam_guess, p, omega_guess=omega_guess),
-        context={"field": system.field}, slack=None if bracket else math.inf,
+        context={"field": system.field},
+        slack=None if bracket else math.inf,
     )
     if not isinstance(result, SpecialPoint):
         raise ConvergenceError(

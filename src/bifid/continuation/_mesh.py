@@ -155,8 +155,9 @@ class MeshPolicy:
         object.__setattr__(self, "ladder", mesh_ladder(self.n_mesh, self.max_mesh))
 
     @classmethod
-    def of(cls, n_mesh: int, max_mesh: int | None, tol: float, adapt: bool,
-           n_states: int) -> MeshPolicy:
+    def of(
+        cls, n_mesh: int, max_mesh: int | None, tol: float, adapt: bool, n_states: int
+    ) -> MeshPolicy:
         """The policy of a driver's arguments (``max_mesh`` default:
         :func:`default_max_mesh`; never below ``n_mesh``)."""
         limit = max_mesh if max_mesh is not None else default_max_mesh(n_mesh, n_states)
@@ -227,7 +228,8 @@ def run_adaptive(
     """
     with threadpool_limits(1, user_api="blas"):
         return _Runner(stage_of, policy, options, n_states, stop, monitor, progress).run(
-            np.asarray(y0, dtype=float), np.asarray(t0, dtype=float), M0 or policy.n_mesh)
+            np.asarray(y0, dtype=float), np.asarray(t0, dtype=float), M0 or policy.n_mesh
+        )
 
 
 class _Runner:
@@ -243,11 +245,19 @@ class _Runner:
         corrector = NewtonCorrector(stage.problem, tol=o.newton_tol, max_iter=o.newton_max_iter)
         mon = None
         if self.monitor is not None:
+
             def mon(y, y_new, args, M=M):
                 return self.monitor(y, y_new, M)
+
         self.stage = stage
-        return Continuation(corrector, stage.problem.param_index, o, weights=stage.weights,
-                            update_args=stage.update_args, monitor=mon)
+        return Continuation(
+            corrector,
+            stage.problem.param_index,
+            o,
+            weights=stage.weights,
+            update_args=stage.update_args,
+            monitor=mon,
+        )
 
     def _switch(self, state: ContinuationState, M_new: int) -> ContinuationState | None:
         """Continue from ``state`` on mesh ``M_new`` (interpolated and corrected)."""
@@ -271,8 +281,13 @@ class _Runner:
         self.driver = self._driver(M0)
         state = self.driver.start(y0, t0, self.stage.args(y0, None), correct_start=False)
         pi = self.stage.problem.param_index % y0.shape[0]
-        out = AdaptiveRun(ys=[state.y], meshes=[M0], tangents=[state.t],
-                          tails=[mesh_tail(state.y, M0, n)], args=[state.args])
+        out = AdaptiveRun(
+            ys=[state.y],
+            meshes=[M0],
+            tangents=[state.t],
+            tails=[mesh_tail(state.y, M0, n)],
+            args=[state.args],
+        )
         if self.progress is not None:
             self.progress(1, float(state.y[pi]))
         hold, retries = 0, 0
@@ -338,8 +353,9 @@ class Arc:
     y_a) = s`` (``d`` the unit chord). Interval searches (extrema, crossings) run on it.
     """
 
-    def __init__(self, stage: Stage, y_a: np.ndarray, M_a: int, y_b: np.ndarray, M_b: int,
-                 n: int) -> None:
+    def __init__(
+        self, stage: Stage, y_a: np.ndarray, M_a: int, y_b: np.ndarray, M_b: int, n: int
+    ) -> None:
         self.M = max(M_a, M_b)
         self.n = n
         self.stage = stage
@@ -364,12 +380,19 @@ def residual_check(context: Any) -> Check:
     ``context["problem"]``, ``["args"]`` and ``["y"]``."""
     y = np.asarray(context["y"], dtype=float)
     G = NewtonCorrector(context["problem"]).residual(y, context["args"])
-    return Check.at_most("residual", float(np.max(np.abs(G))),
-                         1e-8 * (1.0 + float(np.max(np.abs(y)))))
+    return Check.at_most(
+        "residual", float(np.max(np.abs(G))), 1e-8 * (1.0 + float(np.max(np.abs(y))))
+    )
 
 
-def secant_zero(f: Callable[[float], tuple[float, Any]], a: float, b: float, *,
-                iters: int = 40, xtol: float = 1e-14) -> tuple[Any, float] | None:
+def secant_zero(
+    f: Callable[[float], tuple[float, Any]],
+    a: float,
+    b: float,
+    *,
+    iters: int = 40,
+    xtol: float = 1e-14,
+) -> tuple[Any, float] | None:
     """Zero of ``f(s) -> (value, payload)`` in ``[a, b]`` by the Illinois secant method;
     the payload at the best point and the final bracket width (None without a sign
     change or when ``f`` fails)."""
@@ -401,10 +424,12 @@ def secant_zero(f: Callable[[float], tuple[float, Any]], a: float, b: float, *,
 def run_residuals(run: AdaptiveRun, stage_of: Callable[[int], Stage]) -> np.ndarray:
     """``max|G(y)|`` of every point of a run, each on its own mesh (the ``residual`` of a
     branch's ``verification``)."""
-    return np.array([
-        float(np.max(np.abs(NewtonCorrector(stage_of(m).problem).residual(y, a))))
-        for y, m, a in zip(run.ys, run.meshes, run.args, strict=True)
-    ])
+    return np.array(
+        [
+            float(np.max(np.abs(NewtonCorrector(stage_of(m).problem).residual(y, a))))
+            for y, m, a in zip(run.ys, run.meshes, run.args, strict=True)
+        ]
+    )
 
 
 def bracket_slack(y_a: np.ndarray, M_a: int, y_b: np.ndarray, M_b: int, n: int) -> float:

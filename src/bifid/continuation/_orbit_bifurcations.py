@@ -119,8 +119,13 @@ class BracketContext:
         n = self.n
         ps, period = self.params_of(y, M)
         rhs = autonomous_rhs(self.system.field) if self.autonomous else self.forced_rhs
-        fl = floquet(rhs, np.asarray(y[: M * n]).reshape(1, M, n), np.array([period]),
-                     ps[None, :], autonomous=self.autonomous)
+        fl = floquet(
+            rhs,
+            np.asarray(y[: M * n]).reshape(1, M, n),
+            np.array([period]),
+            ps[None, :],
+            autonomous=self.autonomous,
+        )
         if not fl.ok[0]:
             raise ArithmeticError("the Floquet multipliers of the orbit could not be computed")
         return fl.nontrivial(0)
@@ -135,33 +140,47 @@ class BracketContext:
         """The arc between points ``i`` and ``i + 1`` on the finer of their meshes."""
         run = self.run
         M = max(run.meshes[i], run.meshes[i + 1])
-        return Arc(self.stage_of(M), run.ys[i], run.meshes[i], run.ys[i + 1],
-                   run.meshes[i + 1], self.n)
+        return Arc(
+            self.stage_of(M), run.ys[i], run.meshes[i], run.ys[i + 1], run.meshes[i + 1], self.n
+        )
 
 
 def _point_data(ctx: BracketContext, y: np.ndarray, M: int) -> dict[str, Any]:
     n = ctx.n
     V = np.asarray(y[: M * n]).reshape(M, n)
-    return {"period": ctx.params_of(y, M)[1], "amplitude": np.max(np.abs(V), axis=0),
-            "amplitude_centred": np.max(np.abs(V - V.mean(axis=0)), axis=0),
-            "amplitude_states": list(ctx.system.states), "n_mesh": int(M)}
+    return {
+        "period": ctx.params_of(y, M)[1],
+        "amplitude": np.max(np.abs(V), axis=0),
+        "amplitude_centred": np.max(np.abs(V - V.mean(axis=0)), axis=0),
+        "amplitude_states": list(ctx.system.states),
+        "n_mesh": int(M),
+    }
 
 
 def _special(ctx, kind, i, y, M, prec) -> SpecialPoint:
     n = ctx.n
     run = ctx.run
-    return SpecialPoint(kind=kind, param=ctx.lam(y, M), index=i,
-                        bracket=(ctx.lam(run.ys[i], run.meshes[i]),
-                                 ctx.lam(run.ys[i + 1], run.meshes[i + 1])),
-                        solution=np.asarray(y[: M * n + 1]), precision=prec,
-                        data=_point_data(ctx, y, M))
+    return SpecialPoint(
+        kind=kind,
+        param=ctx.lam(y, M),
+        index=i,
+        bracket=(ctx.lam(run.ys[i], run.meshes[i]), ctx.lam(run.ys[i + 1], run.meshes[i + 1])),
+        solution=np.asarray(y[: M * n + 1]),
+        precision=prec,
+        data=_point_data(ctx, y, M),
+    )
 
 
 def _context(ctx: BracketContext, y: np.ndarray, M: int) -> dict[str, Any]:
     stage = ctx.stage_of(M)
-    return {"problem": stage.problem, "args": stage.args(y, None), "weights": stage.weights,
-            "y": y, "multipliers": lambda: ctx.multipliers(y, M),
-            "n_nontrivial": ctx.n_nontrivial}
+    return {
+        "problem": stage.problem,
+        "args": stage.args(y, None),
+        "weights": stage.weights,
+        "y": y,
+        "multipliers": lambda: ctx.multipliers(y, M),
+        "n_nontrivial": ctx.n_nontrivial,
+    }
 
 
 # ------------------------------------------------------------------------ verifiers
@@ -172,7 +191,8 @@ def verify_cycle_fold(point: SpecialPoint, context: Mapping[str, Any]) -> Verdic
     mults, _ = context["multipliers"]()
     d = float(np.min(np.abs(mults - 1.0))) if mults.size else math.inf
     return verify_fold(point, context) + Verdict(
-        (Check.at_most("multiplier_minus_one", d, FOLD_MULTIPLIER_TOL),))
+        (Check.at_most("multiplier_minus_one", d, FOLD_MULTIPLIER_TOL),)
+    )
 
 
 @register_verifier("branch_point")
@@ -187,21 +207,31 @@ def verify_branch_point(point: SpecialPoint, context: Mapping[str, Any]) -> Verd
         return Verdict((Check.finite("jacobian", math.inf),))
     if "multipliers" not in context:
         s = np.linalg.svd(Gy, compute_uv=False)
-        return Verdict((residual_check(context),
-                        Check.at_most("rank_deficiency", float(s[-1] / s[0]), BRANCH_RANK_TOL)))
+        return Verdict(
+            (
+                residual_check(context),
+                Check.at_most("rank_deficiency", float(s[-1] / s[0]), BRANCH_RANK_TOL),
+            )
+        )
     mults, _ = context["multipliers"]()
     d = float(np.min(np.abs(mults - 1.0))) if mults.size else math.inf
     w = np.asarray(context["weights"], dtype=float)
     t = np.linalg.svd(Gy)[2][-1]
     t = t / math.sqrt(float(t @ (w * t)))
-    return Verdict((residual_check(context),
-                    Check.at_most("multiplier_minus_one", d, FOLD_MULTIPLIER_TOL),
-                    Check.at_least("tangent_param", abs(float(t[-1])), BRANCH_TANGENT_MIN)))
+    return Verdict(
+        (
+            residual_check(context),
+            Check.at_most("multiplier_minus_one", d, FOLD_MULTIPLIER_TOL),
+            Check.at_least("tangent_param", abs(float(t[-1])), BRANCH_TANGENT_MIN),
+        )
+    )
 
 
 def _orbit_checks(context: Mapping[str, Any]) -> list[Check]:
-    return [residual_check(context),
-            Check.at_least("nontrivial_multipliers", float(context["n_nontrivial"]), 2.0)]
+    return [
+        residual_check(context),
+        Check.at_least("nontrivial_multipliers", float(context["n_nontrivial"]), 2.0),
+    ]
 
 
 @register_verifier("period_doubling")
@@ -210,8 +240,9 @@ def verify_period_doubling(point: SpecialPoint, context: Mapping[str, Any]) -> V
     mults, _ = context["multipliers"]()
     real = mults[np.abs(np.angle(mults)) >= np.pi - COMPLEX_ARG]
     d = float(np.min(np.abs(real + 1.0))) if real.size else math.inf
-    return Verdict((*_orbit_checks(context),
-                    Check.at_most("multiplier_plus_one", d, MULTIPLIER_TOL)))
+    return Verdict(
+        (*_orbit_checks(context), Check.at_most("multiplier_plus_one", d, MULTIPLIER_TOL))
+    )
 
 
 @register_verifier("torus")
@@ -224,9 +255,13 @@ def verify_torus(point: SpecialPoint, context: Mapping[str, Any]) -> Verdict:
     if not np.any(cplx):
         return Verdict((*_orbit_checks(context), Check.at_least("complex_pair", 0.0, 1.0)))
     k = np.flatnonzero(cplx)[np.argmin(np.abs(logm[cplx]))]
-    return Verdict((*_orbit_checks(context),
-                    Check.at_most("modulus_minus_one", float(np.expm1(logm[k])), MULTIPLIER_TOL),
-                    Check.at_least("argument", float(ang[k]), 1e-3)))
+    return Verdict(
+        (
+            *_orbit_checks(context),
+            Check.at_most("modulus_minus_one", float(np.expm1(logm[k])), MULTIPLIER_TOL),
+            Check.at_least("argument", float(ang[k]), 1e-3),
+        )
+    )
 
 
 # ------------------------------------------------------------------------ detection
@@ -307,8 +342,7 @@ def _bisect_branch_point(ctx: BracketContext, i: int) -> tuple[np.ndarray, int, 
     return yb, arc.M, b - a
 
 
-def find_orbit_special_points(findings: Findings, ctx: BracketContext, params: np.ndarray
-                              ) -> None:
+def find_orbit_special_points(findings: Findings, ctx: BracketContext, params: np.ndarray) -> None:
     """Detect, locate and verify cycle folds, branch points, period doublings and torus
     points along an orbit run; the outcomes go to ``findings``. For forced responses the
     folds are left to the caller (``_forced``: verified as folds of the response)."""
@@ -319,24 +353,37 @@ def find_orbit_special_points(findings: Findings, ctx: BracketContext, params: n
             continue
         if kind == "fold":
             if y_e is None:
-                findings.flag("cycle_fold", bracket, "the parameter turned between these "
-                              "points but the fold could not be located")
+                findings.flag(
+                    "cycle_fold",
+                    bracket,
+                    "the parameter turned between these points but the fold could not be located",
+                )
                 continue
-            findings.confirm("cycle_fold", bracket,
-                             lambda i=i, y=y_e, M=M, prec=prec: _special(ctx, "cycle_fold", i,
-                                                                         y, M, prec),
-                             context=_context(ctx, y_e, M), index=i, slack=ctx.step(i))
+            findings.confirm(
+                "cycle_fold",
+                bracket,
+                lambda i=i, y=y_e, M=M, prec=prec: _special(ctx, "cycle_fold", i, y, M, prec),
+                context=_context(ctx, y_e, M),
+                index=i,
+                slack=ctx.step(i),
+            )
         elif kind == "branch_point":
             found = _bisect_branch_point(ctx, i)
             if found is None:
-                findings.flag("branch_point", bracket, "det [G_y; t^T] changed sign but the "
-                              "branch point could not be located")
+                findings.flag(
+                    "branch_point",
+                    bracket,
+                    "det [G_y; t^T] changed sign but the branch point could not be located",
+                )
                 continue
             y_b, M_b, prec_b = found
-            findings.confirm("branch_point", bracket,
-                             lambda i=i, y=y_b, M=M_b, p=prec_b: _special(ctx, "branch_point",
-                                                                          i, y, M, p),
-                             context=_context(ctx, y_b, M_b), index=i)
+            findings.confirm(
+                "branch_point",
+                bracket,
+                lambda i=i, y=y_b, M=M_b, p=prec_b: _special(ctx, "branch_point", i, y, M, p),
+                context=_context(ctx, y_b, M_b),
+                index=i,
+            )
     fl = ctx.floquet
     valid = fl.ok & ~ctx.zero
     turned = {i for i, kind, *_ in run.events}
@@ -346,19 +393,28 @@ def find_orbit_special_points(findings: Findings, ctx: BracketContext, params: n
         a, b = _counts(*fl.nontrivial(i)), _counts(*fl.nontrivial(i + 1))
         tests = [("branch_point", a[2] != b[2] and i not in turned, _bp_test)]
         if ctx.n_nontrivial >= 2:  # a planar orbit's one is real and positive
-            tests += [("period_doubling", a[0] != b[0], _pd_test),
-                      ("torus", a[1] != b[1], _torus_test)]
+            tests += [
+                ("period_doubling", a[0] != b[0], _pd_test),
+                ("torus", a[1] != b[1], _torus_test),
+            ]
         for kind, changed, test in tests:
             if not changed:
                 continue
             bracket = (params[i], params[i + 1])
             found = _secant(ctx, i, test)
             if found is None:
-                findings.flag(kind, bracket, "a multiplier crossed the unit circle here but "
-                              "the crossing could not be located")
+                findings.flag(
+                    kind,
+                    bracket,
+                    "a multiplier crossed the unit circle here but "
+                    "the crossing could not be located",
+                )
                 continue
             y_s, M_s, prec_s = found
-            findings.confirm(kind, bracket,
-                             lambda i=i, y=y_s, M=M_s, p=prec_s, k=kind: _special(ctx, k, i, y,
-                                                                                  M, p),
-                             context=_context(ctx, y_s, M_s), index=i)
+            findings.confirm(
+                kind,
+                bracket,
+                lambda i=i, y=y_s, M=M_s, p=prec_s, k=kind: _special(ctx, k, i, y, M, p),
+                context=_context(ctx, y_s, M_s),
+                index=i,
+            )

@@ -84,8 +84,9 @@ class OrbitEnds:
         prev = self.amplitudes[-2] if len(self.amplitudes) > 1 else self.first_amplitude
         if peak > 10 * self.first_amplitude and a < HOPF_END_FRACTION * peak and a < prev:
             return "hopf"
-        if T > HOMOCLINIC_PERIOD_FACTOR * min([*self.periods, self.first_period]) or \
-                homoclinic_signature(np.array(self.params), np.array(self.periods)):
+        if T > HOMOCLINIC_PERIOD_FACTOR * min(
+            [*self.periods, self.first_period]
+        ) or homoclinic_signature(np.array(self.params), np.array(self.periods)):
             return "homoclinic"
         return None
 
@@ -118,9 +119,16 @@ def homoclinic_signature(params: np.ndarray, periods: np.ndarray) -> bool:
     return bool(abs(lam[-1] - lam[0]) <= HOMOCLINIC_SETTLED * scale)
 
 
-def orbit_branch(system: System, param: str, p, run: AdaptiveRun, options: ContinuationOptions,
-                 policy: MeshPolicy, start: SpecialPoint, stage_of: Callable[[int], Stage]
-                 ) -> Branch:
+def orbit_branch(
+    system: System,
+    param: str,
+    p,
+    run: AdaptiveRun,
+    options: ContinuationOptions,
+    policy: MeshPolicy,
+    start: SpecialPoint,
+    stage_of: Callable[[int], Stage],
+) -> Branch:
     """Assemble the :class:`Branch` of an adaptive orbit run (``start`` is the Hopf point
     the branch was born at, or a ``kind="start"`` placeholder; ``stage_of(M)`` the
     collocation problem on ``M`` points)."""
@@ -144,14 +152,15 @@ def orbit_branch(system: System, param: str, p, run: AdaptiveRun, options: Conti
         params_ = np.array([y[m * n + 1] for y, m in zip(run.ys, run.meshes, strict=True)])
         periods_ = np.array([y[m * n] for y, m in zip(run.ys, run.meshes, strict=True)])
         if run.stop_reason == "homoclinic" or (
-            status in ("unresolved", "steps", "failed")
-            and homoclinic_signature(params_, periods_)
+            status in ("unresolved", "steps", "failed") and homoclinic_signature(params_, periods_)
         ):
             k = int(np.argmax(periods_))
             status = "homoclinic"
-            message = (f"the period grows without bound (largest {periods_[k]:.8g} at "
-                       f"{param}={params_[k]:.10g}): a homoclinic orbit near "
-                       f"{param} ≈ {params_[-1]:.8g}")
+            message = (
+                f"the period grows without bound (largest {periods_[k]:.8g} at "
+                f"{param}={params_[k]:.10g}): a homoclinic orbit near "
+                f"{param} ≈ {params_[-1]:.8g}"
+            )
             meta["max_period"] = float(periods_[k])
     ys, M = on_common_mesh(run.ys, run.meshes, n)
     meshes = np.asarray(run.meshes)
@@ -165,8 +174,9 @@ def orbit_branch(system: System, param: str, p, run: AdaptiveRun, options: Conti
     centred = centred_states.max(axis=1) if len(orbits) else np.zeros(0)
     zero = centred <= 1e-12 * max(1.0, float(np.max(np.abs(orbits))))
     findings = Findings()
-    ctx = BracketContext(system=system, param=param, p=p, idx=idx, run=run,
-                         stage_of=stage_of, floquet=fl, zero=zero)
+    ctx = BracketContext(
+        system=system, param=param, p=p, idx=idx, run=run, stage_of=stage_of, floquet=fl, zero=zero
+    )
     find_orbit_special_points(findings, ctx, params)
     label = fl.stable()
     if start.kind == "hopf" and zero[0]:
@@ -175,21 +185,41 @@ def orbit_branch(system: System, param: str, p, run: AdaptiveRun, options: Conti
         label[-1] = label[-2] if np.isfinite(label[-2]) else np.nan
     stable = np.nan_to_num(label, nan=0.0).astype(bool) if np.all(np.isfinite(label)) else label
     residual = run_residuals(run, stage_of)
-    meta.update({"n_mesh": int(M), "states": list(system.states), "start_param": start.param,
-                 "start_kind": start.kind, "max_mesh": policy.max_mesh,
-                 "resolution_tol": policy.tol})
+    meta.update(
+        {
+            "n_mesh": int(M),
+            "states": list(system.states),
+            "start_param": start.param,
+            "start_kind": start.kind,
+            "max_mesh": policy.max_mesh,
+            "resolution_tol": policy.tol,
+        }
+    )
     return Branch(
-        kind="periodic", system=system.name, param=param, params=params,
-        solutions=ys[:, : M * n + 1], stable=stable,
+        kind="periodic",
+        system=system.name,
+        param=param,
+        params=params,
+        solutions=ys[:, : M * n + 1],
+        stable=stable,
         special_points=findings.sorted_points(),
-        data={"period": periods, "amplitude": amps,
-              # about the orbit's mean, as a rig measures it (offsets removed)
-              "amplitude_centred": centred_states,
-              "floquet": fl.multipliers, "floquet_log": fl.log_moduli,
-              "floquet_max": fl.floquet_max, "spectral_tail": np.asarray(run.tails),
-              "n_mesh": meshes},
-        p=np.asarray(p), status=status, message=message, options=options,
-        signals=tuple(system.states), meta=meta,
+        data={
+            "period": periods,
+            "amplitude": amps,
+            # about the orbit's mean, as a rig measures it (offsets removed)
+            "amplitude_centred": centred_states,
+            "floquet": fl.multipliers,
+            "floquet_log": fl.log_moduli,
+            "floquet_max": fl.floquet_max,
+            "spectral_tail": np.asarray(run.tails),
+            "n_mesh": meshes,
+        },
+        p=np.asarray(p),
+        status=status,
+        message=message,
+        options=options,
+        signals=tuple(system.states),
+        meta=meta,
         verification={"residual": residual, "spectral_tail": np.asarray(run.tails)},
         candidates=findings.candidates,
     )
@@ -209,17 +239,24 @@ def _branch_floquet(system, p, idx, run: AdaptiveRun, n: int) -> Floquet:
         ps = np.repeat(np.asarray(p)[None, :], len(rows), axis=0)
         ps[:, idx] = [run.ys[i][run.meshes[i] * n + 1] for i in rows]
         periods = np.array([run.ys[i][run.meshes[i] * n] for i in rows])
-        fl = floquet(autonomous_rhs(system.field), [V[i] for i in rows], periods, ps,
-                     autonomous=True)
-        mults[rows], logm[rows], trivial[rows], ok[rows] = (fl.multipliers, fl.log_moduli,
-                                                            fl.trivial, fl.ok)
+        fl = floquet(
+            autonomous_rhs(system.field), [V[i] for i in rows], periods, ps, autonomous=True
+        )
+        mults[rows], logm[rows], trivial[rows], ok[rows] = (
+            fl.multipliers,
+            fl.log_moduli,
+            fl.trivial,
+            fl.ok,
+        )
     return Floquet(mults, logm, trivial, ok)
 
 
 def _zero_amplitude_fold(run: AdaptiveRun, n: int) -> int | None:
     """Index of a "fold" event whose located orbit has (nearly) vanished."""
-    peak = max(_centred(np.asarray(y[: m * n]).reshape(m, n))
-               for y, m in zip(run.ys, run.meshes, strict=True))
+    peak = max(
+        _centred(np.asarray(y[: m * n]).reshape(m, n))
+        for y, m in zip(run.ys, run.meshes, strict=True)
+    )
     for i, kind, y_e, _, M in run.events:
         if kind == "fold" and y_e is not None:
             a = _centred(np.asarray(y_e[: M * n]).reshape(M, n))
@@ -243,25 +280,39 @@ def _hopf_end(system, param, p, run: AdaptiveRun, n: int, meta: dict) -> tuple[s
     V = np.asarray(y[: M * n]).reshape(M, n)
     lam = float(y[M * n + 1])
     try:
-        h = locate_hopf(system, param, V.mean(axis=0), lam, jnp.asarray(p),
-                        omega_guess=2 * np.pi / float(y[M * n]))
+        h = locate_hopf(
+            system,
+            param,
+            V.mean(axis=0),
+            lam,
+            jnp.asarray(p),
+            omega_guess=2 * np.pi / float(y[M * n]),
+        )
     except LOCATION_ERRORS as exc:
-        return "hopf", (f"the orbits shrink into an equilibrium near {param}={lam:.8g} "
-                        f"(its Hopf point could not be located: {exc})")
+        return "hopf", (
+            f"the orbits shrink into an equilibrium near {param}={lam:.8g} "
+            f"(its Hopf point could not be located: {exc})"
+        )
     lams = [float(yy[m * n + 1]) for yy, m in zip(run.ys[-3:], run.meshes[-3:], strict=True)]
     slack = 2.0 * max(np.ptp(lams), 1e-9 * max(1.0, abs(lam)))
     if abs(h.param - lam) > slack:
         # the orbits collapsed, but not into a Hopf point there: never report a point
         # that is not where the branch ends
-        return "failed", (f"the orbits collapsed onto the equilibrium near {param}={lam:.8g}, "
-                          f"where it has no Hopf point (the nearest is at {h.param:.8g})")
+        return "failed", (
+            f"the orbits collapsed onto the equilibrium near {param}={lam:.8g}, "
+            f"where it has no Hopf point (the nearest is at {h.param:.8g})"
+        )
     x_h = np.asarray(h.solution, dtype=float)
     run.ys.append(np.concatenate([np.tile(x_h, M), [2 * np.pi / h.data["omega"], h.param]]))
     run.meshes.append(M)
     run.tangents.append(run.tangents[-1])
     run.tails.append(0.0)
     run.args.append(run.args[-1])
-    meta["end_hopf"] = {"param": float(h.param), "omega": float(h.data["omega"]),
-                        "verification": dict(h.verification)}
-    return "hopf", ("the orbits shrink into the equilibrium at the Hopf point "
-                    f"{param}={h.param:.10g}")
+    meta["end_hopf"] = {
+        "param": float(h.param),
+        "omega": float(h.data["omega"]),
+        "verification": dict(h.verification),
+    }
+    return "hopf", (
+        f"the orbits shrink into the equilibrium at the Hopf point {param}={h.param:.10g}"
+    )

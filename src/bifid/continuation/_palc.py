@@ -196,8 +196,9 @@ class Continuation:
     def _w(self, n: int) -> np.ndarray:
         return np.ones(n) if self.weights is None else self.weights
 
-    def start(self, y0: Array, t0: Array, args: Any, *, correct_start: bool = True
-              ) -> ContinuationState:
+    def start(
+        self, y0: Array, t0: Array, args: Any, *, correct_start: bool = True
+    ) -> ContinuationState:
         """Correct ``y0`` at fixed parameter (unless told not to) and orient the tangent
         like ``t0``; a start that cannot be corrected gives a state with status
         ``"failed"``."""
@@ -211,10 +212,16 @@ class Continuation:
             r = self.corrector.correct(y, e_p, float(y[pi]), args)
             if not r.converged:
                 return ContinuationState(
-                    y=y, t=np.zeros(n), ds=self.options.ds, sign=math.nan, n_points=0,
-                    args=args, status="failed",
+                    y=y,
+                    t=np.zeros(n),
+                    ds=self.options.ds,
+                    sign=math.nan,
+                    n_points=0,
+                    args=args,
+                    status="failed",
                     message="Newton did not converge at the starting point "
-                    f"(parameter {float(y[pi]):.6g}).")
+                    f"(parameter {float(y[pi]):.6g}).",
+                )
             y = r.y
             self.corrector.accept(r)
         t0 = np.asarray(t0, dtype=float)
@@ -223,8 +230,15 @@ class Continuation:
             t, sign = -t, -sign
         if self.update_args is not None:
             args = self.update_args(y, args)
-        return ContinuationState(y=y, t=t, ds=self.options.ds, sign=sign, n_points=1,
-                                 args=args, corrector=self.corrector.state())
+        return ContinuationState(
+            y=y,
+            t=t,
+            ds=self.options.ds,
+            sign=sign,
+            n_points=1,
+            args=args,
+            corrector=self.corrector.state(),
+        )
 
     def step(self, state: ContinuationState) -> Step:
         """Try one step from ``state``; see :class:`Step`."""
@@ -232,8 +246,13 @@ class Continuation:
         if not state.running:
             return Step(state)
         if state.n_points >= o.max_steps:
-            return Step(replace(state, status="steps",
-                                message=f"maximum number of steps ({o.max_steps}) reached"))
+            return Step(
+                replace(
+                    state,
+                    status="steps",
+                    message=f"maximum number of steps ({o.max_steps}) reached",
+                )
+            )
         y, t, ds, args = state.y, state.t, state.ds, state.args
         n = y.shape[0]
         pi = self.param_index % n
@@ -256,17 +275,27 @@ class Continuation:
         if ok and self.monitor is not None and ds > o.ds_min * 1.0001:
             factor = float(self.monitor(y, r.y, args))
             if factor < 1.0:
-                return Step(replace(state, ds=max(ds * max(factor, 0.1), o.ds_min),
-                                    corrector=self.corrector.state()))
+                return Step(
+                    replace(
+                        state,
+                        ds=max(ds * max(factor, 0.1), o.ds_min),
+                        corrector=self.corrector.state(),
+                    )
+                )
         if not ok:
             if ds <= o.ds_min * 1.0001:
                 name = self.param_name or problem_param_name(args)
-                return Step(replace(
-                    state, status="failed",
-                    message=f"the corrector failed near {name}={float(y[pi]):.8g} even with "
-                    f"the minimum step ds_min={o.ds_min:g}"))
-            return Step(replace(state, ds=max(ds / 2.0, o.ds_min),
-                                corrector=self.corrector.state()))
+                return Step(
+                    replace(
+                        state,
+                        status="failed",
+                        message=f"the corrector failed near {name}={float(y[pi]):.8g} even with "
+                        f"the minimum step ds_min={o.ds_min:g}",
+                    )
+                )
+            return Step(
+                replace(state, ds=max(ds / 2.0, o.ds_min), corrector=self.corrector.state())
+            )
 
         y_new = r.y
         p_new = float(y_new[pi])
@@ -277,14 +306,26 @@ class Continuation:
             e_p[pi] = 1.0
             rb = self.corrector.correct(y + frac * (y_new - y), e_p, hit, args)
             if not rb.converged:
-                return Step(replace(state, status="failed",
-                                    message=f"could not converge on the parameter bound {hit:g}"))
+                return Step(
+                    replace(
+                        state,
+                        status="failed",
+                        message=f"could not converge on the parameter bound {hit:g}",
+                    )
+                )
             self.corrector.accept(rb)
             t_b, sign_b = self.corrector.tangent(rb.y, direction, w, args)
-            new = replace(state, y=rb.y, t=t_b, sign=sign_b, n_points=state.n_points + 1,
-                          y_prev=y, status="range",
-                          message=f"reached the parameter bound {hit:g}",
-                          corrector=self.corrector.state())
+            new = replace(
+                state,
+                y=rb.y,
+                t=t_b,
+                sign=sign_b,
+                n_points=state.n_points + 1,
+                y_prev=y,
+                status="range",
+                message=f"reached the parameter bound {hit:g}",
+                corrector=self.corrector.state(),
+            )
             return Step(new, rb, t_b)
 
         events: list[tuple[str, np.ndarray | None, float]] = []
@@ -300,26 +341,48 @@ class Continuation:
             ds = min(ds * o.growth, o.ds_max)
         elif r.iterations >= o.newton_max_iter - 2:
             ds = max(ds / 2.0, o.ds_min)
-        new = replace(state, y=y_new, t=t_new, ds=ds, sign=sign_new,
-                      n_points=state.n_points + 1, y_prev=y, args=args,
-                      corrector=self.corrector.state())
+        new = replace(
+            state,
+            y=y_new,
+            t=t_new,
+            ds=ds,
+            sign=sign_new,
+            n_points=state.n_points + 1,
+            y_prev=y,
+            args=args,
+            corrector=self.corrector.state(),
+        )
         if self.stop is not None and self.stop(y_new):
             new.status, new.message = "completed", "stopping condition met"
         elif (bound := _at_bound(p_new, float(y[pi]), o)) is not None:
             new.status = "range"
-            new.message = (f"reached the parameter bound {bound:g} "
-                           f"(to {abs(p_new - bound):.1e}; it is approached asymptotically)")
+            new.message = (
+                f"reached the parameter bound {bound:g} "
+                f"(to {abs(p_new - bound):.1e}; it is approached asymptotically)"
+            )
         return Step(new, r, t_new, events)
 
-    def run(self, y0: Array, t0: Array, args: Any, *, correct_start: bool = True,
-            progress: Callable[[int, float], None] | None = None) -> PalcResult:
+    def run(
+        self,
+        y0: Array,
+        t0: Array,
+        args: Any,
+        *,
+        correct_start: bool = True,
+        progress: Callable[[int, float], None] | None = None,
+    ) -> PalcResult:
         """Follow the branch until it ends; the points, tangents and events in one result."""
         state = self.start(y0, t0, args, correct_start=correct_start)
         n = np.asarray(y0).shape[0]
         if state.status == "failed":
-            return PalcResult(ys=np.empty((0, n)), tangents=np.empty((0, n)),
-                              iterations=np.empty(0, int), status="failed",
-                              message=state.message, args=args)
+            return PalcResult(
+                ys=np.empty((0, n)),
+                tangents=np.empty((0, n)),
+                iterations=np.empty(0, int),
+                status="failed",
+                message=state.message,
+                args=args,
+            )
         pi = self.param_index % n
         ys, ts, its = [state.y], [state.t], [0]
         folds: list[tuple[int, np.ndarray, float]] = []
@@ -343,10 +406,17 @@ class Continuation:
                 if progress is not None:
                     progress(len(ys), float(s.point.y[pi]))
             state = s.state
-        return PalcResult(ys=np.array(ys), tangents=np.array(ts), iterations=np.array(its),
-                          folds=folds, branch_points=bps, status=state.status,
-                          message=state.message, args=state.args,
-                          fold_failures=fold_failures)
+        return PalcResult(
+            ys=np.array(ys),
+            tangents=np.array(ts),
+            iterations=np.array(its),
+            folds=folds,
+            branch_points=bps,
+            status=state.status,
+            message=state.message,
+            args=state.args,
+            fold_failures=fold_failures,
+        )
 
 
 def palc(
@@ -394,9 +464,16 @@ def palc(
         Points, tangents, located folds, flagged branch points and why it ended.
     """
     corrector = NewtonCorrector(problem, tol=options.newton_tol, max_iter=options.newton_max_iter)
-    driver = Continuation(corrector, problem.param_index, options, weights=weights,
-                          update_args=update_args, stop=stop, monitor=monitor,
-                          param_name=param_name)
+    driver = Continuation(
+        corrector,
+        problem.param_index,
+        options,
+        weights=weights,
+        update_args=update_args,
+        stop=stop,
+        monitor=monitor,
+        param_name=param_name,
+    )
     # Single-threaded BLAS: these dense systems are small, and a multi-threaded OpenBLAS
     # on a loaded machine is 10-30x slower (threads spin against each other).
     with threadpool_limits(1, user_api="blas"):

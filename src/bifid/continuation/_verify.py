@@ -157,8 +157,7 @@ def register_verifier(kind: str) -> Callable[[Verifier], Verifier]:
     return deco
 
 
-def _generic_checks(point: SpecialPoint, bracket: tuple[float, float],
-                    slack: float) -> Verdict:
+def _generic_checks(point: SpecialPoint, bracket: tuple[float, float], slack: float) -> Verdict:
     lo, hi = min(bracket), max(bracket)
     p = float(point.param)
     tol = slack + 1e-9 * max(1.0, abs(lo), abs(hi))
@@ -229,9 +228,12 @@ def confirm(
     except LOCATION_ERRORS as exc:
         return Candidate(kind, bracket, f"could not be verified: {_one_line(exc)}", branch)
     if not verdict.ok:
-        return Candidate(kind, bracket,
-                         f"located at {point.param:.10g} but not verified: {verdict.reason}",
-                         branch)
+        return Candidate(
+            kind,
+            bracket,
+            f"located at {point.param:.10g} but not verified: {verdict.reason}",
+            branch,
+        )
     point.status = "converged"
     point.index = int(index)
     point.bracket = bracket
@@ -244,7 +246,8 @@ def _same_point(a: SpecialPoint, b: SpecialPoint) -> bool:
         return False
     sa, sb = np.ravel(a.solution), np.ravel(b.solution)
     return sa.shape == sb.shape and bool(
-        np.max(np.abs(sa - sb), initial=0.0) <= 1e-7 * (1.0 + np.max(np.abs(sa), initial=0.0)))
+        np.max(np.abs(sa - sb), initial=0.0) <= 1e-7 * (1.0 + np.max(np.abs(sa), initial=0.0))
+    )
 
 
 def _neighbours(a: tuple[float, float], b: tuple[float, float]) -> bool:
@@ -275,8 +278,9 @@ class Findings:
         parameter component is zero to rounding there and may change sign in both
         intervals that share the point — one fold, reported once (the first result is
         returned)."""
-        if isinstance(result, SpecialPoint) and not (result.status == "converged"
-                                                     and result.verification):
+        if isinstance(result, SpecialPoint) and not (
+            result.status == "converged" and result.verification
+        ):
             raise BifidInputError(  # only confirm() makes a located point
                 f"a {result.kind} point must be verified by confirm() before it is reported."
             )
@@ -287,19 +291,28 @@ class Findings:
                 return result
             if result.kind in EXTREMAL_KINDS and _neighbours(twin.bracket, result.bracket):
                 return twin
-            result = Candidate(result.kind, result.bracket,
-                               f"Newton converged to the point already located at "
-                               f"{twin.param:.10g}", self.branch)
+            result = Candidate(
+                result.kind,
+                result.bracket,
+                f"Newton converged to the point already located at {twin.param:.10g}",
+                self.branch,
+            )
         self.candidates.append(result)
         return result
 
     def flag(self, kind: str, bracket: tuple[float, float], reason: str) -> None:
         """Record a detected point that is not located (a candidate with its reason)."""
-        self.candidates.append(Candidate(kind, (float(bracket[0]), float(bracket[1])), reason,
-                                         self.branch))
+        self.candidates.append(
+            Candidate(kind, (float(bracket[0]), float(bracket[1])), reason, self.branch)
+        )
 
-    def confirm(self, kind: str, bracket: tuple[float, float],
-                locate: Callable[[], SpecialPoint | None], **kw: Any) -> SpecialPoint | Candidate:
+    def confirm(
+        self,
+        kind: str,
+        bracket: tuple[float, float],
+        locate: Callable[[], SpecialPoint | None],
+        **kw: Any,
+    ) -> SpecialPoint | Candidate:
         """:func:`confirm` on this branch, the outcome added; returns it."""
         return self.add(confirm(kind, bracket, locate, branch=self.branch, **kw))
 

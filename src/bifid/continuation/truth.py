@@ -51,8 +51,13 @@ __all__ = [
 Record = tuple[float, np.ndarray, float, bool]
 
 
-def orbit_from_samples(states: np.ndarray, phase: np.ndarray | float, sample_rate: float,
-                       n_mesh: int = 64, n_harmonics: int = 15) -> np.ndarray:
+def orbit_from_samples(
+    states: np.ndarray,
+    phase: np.ndarray | float,
+    sample_rate: float,
+    n_mesh: int = 64,
+    n_harmonics: int = 15,
+) -> np.ndarray:
     """One period of a sampled periodic trajectory on ``n_mesh`` equispaced phases.
 
     Parameters
@@ -86,9 +91,16 @@ def _on_mesh(system: System, orbit: np.ndarray, n_mesh: int) -> np.ndarray:
     return resample_orbit(V, n_mesh) if V.shape[0] != n_mesh else V
 
 
-def correct_orbit(system: System, param: str, value: float, orbit: np.ndarray, period: float,
-                  p: Sequence[float] | None = None, n_mesh: int = 64, tol: float = 1e-11
-                  ) -> tuple[np.ndarray, float]:
+def correct_orbit(
+    system: System,
+    param: str,
+    value: float,
+    orbit: np.ndarray,
+    period: float,
+    p: Sequence[float] | None = None,
+    n_mesh: int = 64,
+    tol: float = 1e-11,
+) -> tuple[np.ndarray, float]:
     """Newton-correct an approximate orbit of the uncontrolled ``system`` at ``param=value``.
 
     Parameters
@@ -113,17 +125,30 @@ def correct_orbit(system: System, param: str, value: float, orbit: np.ndarray, p
     V, n, pv = _guess(system, orbit, n_mesh, p)
     D = fourier_differentiation_matrix(n_mesh)
     idx = system.index(param)
-    args = {"p": pv.at[idx].set(value), "idx": jnp.asarray(idx),
-            "dref": jnp.asarray((D @ V).ravel())}
-    y = _newton(orbit_problem(system.field, n_mesh, n),
-                np.concatenate([V.ravel(), [period, value]]), args, tol,
-                f"the orbit of {system.name!r} at {param}={value:g}")
+    args = {
+        "p": pv.at[idx].set(value),
+        "idx": jnp.asarray(idx),
+        "dref": jnp.asarray((D @ V).ravel()),
+    }
+    y = _newton(
+        orbit_problem(system.field, n_mesh, n),
+        np.concatenate([V.ravel(), [period, value]]),
+        args,
+        tol,
+        f"the orbit of {system.name!r} at {param}={value:g}",
+    )
     return np.asarray(y[: n_mesh * n]).reshape(n_mesh, n), float(y[n_mesh * n])
 
 
-def correct_forced(system: System, omega: float, forcing: float, orbit: np.ndarray,
-                   p: Sequence[float] | None = None, n_mesh: int = 64, tol: float = 1e-11
-                   ) -> np.ndarray:
+def correct_forced(
+    system: System,
+    omega: float,
+    forcing: float,
+    orbit: np.ndarray,
+    p: Sequence[float] | None = None,
+    n_mesh: int = 64,
+    tol: float = 1e-11,
+) -> np.ndarray:
     """Newton-correct a forced response of ``system`` at ``(F, Ω) = (forcing, omega)``.
 
     ``orbit`` (M, n) is a guess on ``τ_k = 2πk/M`` with the force ``F cos τ``.
@@ -135,11 +160,18 @@ def correct_forced(system: System, omega: float, forcing: float, orbit: np.ndarr
     """
     V, n, pv = _guess(system, orbit, n_mesh, p)
     iF, iOm = system.index("F"), system.index("Omega")
-    args = {"p": pv.at[iOm].set(omega).at[iF].set(forcing), "idx": jnp.asarray([iF]),
-            "obs": jnp.asarray(system.state_index(system.observed))}
-    y = _newton(forced_problem(system, n_mesh, 1), np.concatenate([V.ravel(), [forcing]]),
-                args, tol, f"the forced response of {system.name!r} at F={forcing:g}, "
-                f"Omega={omega:g}")
+    args = {
+        "p": pv.at[iOm].set(omega).at[iF].set(forcing),
+        "idx": jnp.asarray([iF]),
+        "obs": jnp.asarray(system.state_index(system.observed)),
+    }
+    y = _newton(
+        forced_problem(system, n_mesh, 1),
+        np.concatenate([V.ravel(), [forcing]]),
+        args,
+        tol,
+        f"the forced response of {system.name!r} at F={forcing:g}, Omega={omega:g}",
+    )
     return np.asarray(y[: n_mesh * n]).reshape(n_mesh, n)
 
 
@@ -170,9 +202,16 @@ def _resolve(system: System | str) -> System:
     return get_system(system) if isinstance(system, str) else system
 
 
-def simulated_records(system: System | str, params: Sequence[float], *, duration: float,
-                      dt: float, transient: float = 60.0, x0: Sequence[float] | None = None,
-                      signals: Sequence[str] | None = None) -> list[Record]:
+def simulated_records(
+    system: System | str,
+    params: Sequence[float],
+    *,
+    duration: float,
+    dt: float,
+    transient: float = 60.0,
+    x0: Sequence[float] | None = None,
+    signals: Sequence[str] | None = None,
+) -> list[Record]:
     """Stable limit cycles by integration: ``transient`` seconds first, then the record.
 
     Returns
@@ -214,9 +253,16 @@ class ContinuationTruth:
     p: np.ndarray
 
     @classmethod
-    def compute(cls, system: System | str, param: str | None = None, *,
-                p_range: tuple[float, float], n_mesh: int = 48, ds: float = 0.01,
-                max_steps: int = 400) -> ContinuationTruth:
+    def compute(
+        cls,
+        system: System | str,
+        param: str | None = None,
+        *,
+        p_range: tuple[float, float],
+        n_mesh: int = 48,
+        ds: float = 0.01,
+        max_steps: int = 400,
+    ) -> ContinuationTruth:
         """Equilibria over ``p_range``, the first Hopf point and its cycle branch.
 
         Raises
@@ -227,24 +273,39 @@ class ContinuationTruth:
         system = _resolve(system)
         param = param or system.default_param
         lo, hi = p_range
-        eq = equilibria(system, param, start=lo, options=ContinuationOptions(
-            p_min=lo, p_max=hi, ds=0.05, ds_max=0.5, max_steps=500))
+        eq = equilibria(
+            system,
+            param,
+            start=lo,
+            options=ContinuationOptions(p_min=lo, p_max=hi, ds=0.05, ds_max=0.5, max_steps=500),
+        )
         hopfs = eq.special("hopf")
         if not hopfs:
             raise ConvergenceError(f"No Hopf point of {system.name!r} in {param} ∈ {p_range}.")
         hp = hopfs[0]
-        br = hopf_orbits(system, hp, n_mesh=n_mesh, options=ContinuationOptions(
-            p_min=lo, p_max=hi, ds=ds, ds_max=0.2, max_steps=max_steps))
+        br = hopf_orbits(
+            system,
+            hp,
+            n_mesh=n_mesh,
+            options=ContinuationOptions(p_min=lo, p_max=hi, ds=ds, ds_max=0.2, max_steps=max_steps),
+        )
         folds = br.special("cycle_fold")
         M = int(br.meta.get("n_mesh", n_mesh))
         n = system.n_states
         sol = np.asarray(br.solutions)
-        return cls(system=system, param=param, hopf_param=float(hp.param),
-                   hopf_omega=float(hp.data["omega"]),
-                   fold_param=float(folds[0].param) if folds else None,
-                   params=np.asarray(br.params), stable=np.asarray(br.stable, dtype=bool),
-                   orbits=sol[:, : M * n].reshape(-1, M, n), periods=sol[:, M * n],
-                   n_mesh=M, p=np.asarray(hp.data["p"]))
+        return cls(
+            system=system,
+            param=param,
+            hopf_param=float(hp.param),
+            hopf_omega=float(hp.data["omega"]),
+            fold_param=float(folds[0].param) if folds else None,
+            params=np.asarray(br.params),
+            stable=np.asarray(br.stable, dtype=bool),
+            orbits=sol[:, : M * n].reshape(-1, M, n),
+            periods=sol[:, M * n],
+            n_mesh=M,
+            p=np.asarray(hp.data["p"]),
+        )
 
     def orbit(self, value: float, stable: bool) -> tuple[np.ndarray, float]:
         """The exact cycle at ``param = value`` on the stable / unstable side.
@@ -263,16 +324,29 @@ class ContinuationTruth:
         """
         for a in np.flatnonzero(self.stable == stable):
             b = a + 1
-            if b < len(self.params) and self.stable[b] == stable and \
-                    min(self.params[a], self.params[b]) <= value <= max(self.params[a],
-                                                                         self.params[b]):
+            if (
+                b < len(self.params)
+                and self.stable[b] == stable
+                and min(self.params[a], self.params[b])
+                <= value
+                <= max(self.params[a], self.params[b])
+            ):
                 w = (value - self.params[a]) / (self.params[b] - self.params[a])
                 guess = (1 - w) * self.orbits[a] + w * self.orbits[b]
                 period = (1 - w) * self.periods[a] + w * self.periods[b]
-                return correct_orbit(self.system, self.param, float(value), guess,
-                                     float(period), p=self.p, n_mesh=self.n_mesh)
-        raise BifidInputError(f"No {'stable' if stable else 'unstable'} cycle of "
-                              f"{self.system.name} at {self.param}={value}.")
+                return correct_orbit(
+                    self.system,
+                    self.param,
+                    float(value),
+                    guess,
+                    float(period),
+                    p=self.p,
+                    n_mesh=self.n_mesh,
+                )
+        raise BifidInputError(
+            f"No {'stable' if stable else 'unstable'} cycle of "
+            f"{self.system.name} at {self.param}={value}."
+        )
 
     def amplitude(self, value: float, stable: bool, states: Sequence[str]) -> np.ndarray:
         """``max_t |x_s(t)|`` of ``states`` on the exact cycle."""
@@ -283,9 +357,17 @@ class ContinuationTruth:
         """Angular frequency ``2π/T`` of the exact cycle [rad/s]."""
         return 2 * np.pi / self.orbit(value, stable)[1]
 
-    def records(self, stable_params: Sequence[float], unstable_params: Sequence[float],
-                states: Sequence[str], *, duration: float = 1.0, sample_rate: float = 1000.0,
-                noise: float = 0.0, seed: int = 0) -> list[Record]:
+    def records(
+        self,
+        stable_params: Sequence[float],
+        unstable_params: Sequence[float],
+        states: Sequence[str],
+        *,
+        duration: float = 1.0,
+        sample_rate: float = 1000.0,
+        noise: float = 0.0,
+        seed: int = 0,
+    ) -> list[Record]:
         """Cycles sampled as records (random initial phase); ``noise`` is Gaussian with
         standard deviation ``noise × RMS`` of each signal over all records (absolute, as a
         sensor's)."""
@@ -301,6 +383,8 @@ class ContinuationTruth:
                 out.append((float(v), sig, sample_rate, stable))
         if noise > 0:
             rms = np.sqrt(np.mean(np.concatenate([r[1] for r in out]) ** 2, axis=0))
-            out = [(v, s + noise * rms[None, :] * rng.standard_normal(s.shape), fs, st)
-                   for v, s, fs, st in out]
+            out = [
+                (v, s + noise * rms[None, :] * rng.standard_normal(s.shape), fs, st)
+                for v, s, fs, st in out
+            ]
         return out

@@ -57,8 +57,9 @@ def _read_text(path: Path) -> str:
     try:
         return raw.decode("utf-8-sig")
     except UnicodeDecodeError as exc:
-        raise BifidInputError(f"{path} is not UTF-8 text ({exc.reason} at byte {exc.start}).")\
-            from None
+        raise BifidInputError(
+            f"{path} is not UTF-8 text ({exc.reason} at byte {exc.start})."
+        ) from None
 
 
 def _parse_units(text: str, where: str) -> dict[str, str]:
@@ -122,8 +123,10 @@ def read_csv_dataset(path: str | os.PathLike[str]) -> xr.Dataset:
     if not rows:
         raise BifidInputError(f"{where}: the file holds no data rows.")
     groups = _group_rows(rows, header, cols, signals, start + 2, where)
-    records = [_record(kind, rid, g, f"{where}, record {rid!r} (from line {g['line']})")
-               for rid, g in groups.items()]
+    records = [
+        _record(kind, rid, g, f"{where}, record {rid!r} (from line {g['line']})")
+        for rid, g in groups.items()
+    ]
     return _dataset(kind, records, signals, meta, path, where)
 
 
@@ -172,8 +175,14 @@ def _schema(header: list[str], where: str) -> tuple[str, dict[str, int], list[st
     return kind, cols, signals
 
 
-def _group_rows(rows: list[list[str]], header: list[str], cols: dict[str, int],
-                signals: list[str], first_line: int, where: str) -> dict[str, dict[str, Any]]:
+def _group_rows(
+    rows: list[list[str]],
+    header: list[str],
+    cols: dict[str, int],
+    signals: list[str],
+    first_line: int,
+    where: str,
+) -> dict[str, dict[str, Any]]:
     """Rows grouped by record id: per-record constants and per-sample columns."""
     rec_cols = [c for c in (*_LCO_RECORD_COLS, *_FORCED_RECORD_COLS, "stable") if c in cols]
     groups: dict[str, dict[str, Any]] = {}
@@ -188,13 +197,25 @@ def _group_rows(rows: list[list[str]], header: list[str], cols: dict[str, int],
         rid = row[cols["record"]].strip()
         if not rid:
             raise BifidInputError(f"{where}, line {line}: empty record id.")
-        consts = {c: _float(row[cols[c]], c, line, where,
-                            allow_empty=c in ("stable", "frequency", "amplitude", "phase"))
-                  for c in rec_cols}
+        consts = {
+            c: _float(
+                row[cols[c]],
+                c,
+                line,
+                where,
+                allow_empty=c in ("stable", "frequency", "amplitude", "phase"),
+            )
+            for c in rec_cols
+        }
         g = groups.get(rid)
         if g is None:
-            g = groups[rid] = {"consts": consts, "line": line, "time": [], "sig": [],
-                               **{c: [] for c in _SAMPLE_COLS if c in cols}}
+            g = groups[rid] = {
+                "consts": consts,
+                "line": line,
+                "time": [],
+                "sig": [],
+                **{c: [] for c in _SAMPLE_COLS if c in cols},
+            }
         else:
             for c, v in consts.items():
                 old = g["consts"][c]
@@ -256,17 +277,29 @@ def _record(kind: str, rid: str, g: dict[str, Any], rwhere: str) -> LCORecord | 
                 freq = estimate_frequency(sig[:, 0], rate)
                 extra["frequency_estimated"] = 1.0
             return LCORecord(
-                param=c["param"], signals=sig, sample_rate=rate, stable=stable,
-                control=per_sample["control"], target=per_sample["target"],
-                frequency=freq, extra=extra,
+                param=c["param"],
+                signals=sig,
+                sample_rate=rate,
+                stable=stable,
+                control=per_sample["control"],
+                target=per_sample["target"],
+                frequency=freq,
+                extra=extra,
             )
         curve = c.get("curve", 0.0)
         if not math.isfinite(curve) or curve != int(curve):
             raise BifidInputError(f"curve must be an integer, got {curve!r}.")
         return ForcedRecord(
-            omega=c["omega"], forcing=c["forcing"], signals=sig, sample_rate=rate,
-            stable=stable, force=per_sample["force"], control=per_sample["control"],
-            target=per_sample["target"], curve=int(curve), extra=extra,
+            omega=c["omega"],
+            forcing=c["forcing"],
+            signals=sig,
+            sample_rate=rate,
+            stable=stable,
+            force=per_sample["force"],
+            control=per_sample["control"],
+            target=per_sample["target"],
+            curve=int(curve),
+            extra=extra,
             amplitude=None if math.isnan(c.get("amplitude", math.nan)) else c["amplitude"],
             phase=None if math.isnan(c.get("phase", math.nan)) else c["phase"],
         )
@@ -274,8 +307,9 @@ def _record(kind: str, rid: str, g: dict[str, Any], rwhere: str) -> LCORecord | 
         raise BifidInputError(f"{rwhere}: {exc}") from None
 
 
-def _dataset(kind: str, records: list[Any], signals: list[str], meta: dict[str, str],
-             path: Path, where: str) -> xr.Dataset:
+def _dataset(
+    kind: str, records: list[Any], signals: list[str], meta: dict[str, str], path: Path, where: str
+) -> xr.Dataset:
     """The dataset of the records, with the file's metadata and units."""
     units = _parse_units(meta.get("units", ""), where)
     signal_units = {s: units[s] for s in signals if s in units}
@@ -283,18 +317,29 @@ def _dataset(kind: str, records: list[Any], signals: list[str], meta: dict[str, 
     attrs = {f"{k}_units": units[k] for k in ("control", "target") if k in units}
     if kind == "lco":
         return lco_dataset(
-            records, signals, param_name=meta.get("param_name", "param"),
-            param_units=units.get("param", ""), system=meta.get("system", "experiment"),
-            settings=settings, source=meta.get("source", str(path)),
-            signal_units=signal_units, attrs=attrs,
+            records,
+            signals,
+            param_name=meta.get("param_name", "param"),
+            param_units=units.get("param", ""),
+            system=meta.get("system", "experiment"),
+            settings=settings,
+            source=meta.get("source", str(path)),
+            signal_units=signal_units,
+            attrs=attrs,
         )
     observed = meta.get("observed") or signals[0]
     if observed not in signals:
         raise BifidInputError(f"{where}: '# observed: {observed}' is not a signal column.")
     return forced_dataset(
-        records, signals, observed=observed, system=meta.get("system", "experiment"),
-        settings=settings, source=meta.get("source", str(path)), signal_units=signal_units,
-        forcing_units=units.get("forcing", ""), attrs=attrs,
+        records,
+        signals,
+        observed=observed,
+        system=meta.get("system", "experiment"),
+        settings=settings,
+        source=meta.get("source", str(path)),
+        signal_units=signal_units,
+        forcing_units=units.get("forcing", ""),
+        attrs=attrs,
     )
 
 
@@ -329,9 +374,20 @@ def write_csv(ds: xr.Dataset, path: str | os.PathLike[str]) -> Path:
                 "write_csv: some forced records have a force signal and some not; the CSV "
                 "force column needs one for every record (or none)."
             )
-        head = ["record", "omega", "forcing", "stable", "time", *names, "curve", "amplitude",
-                "phase",
-                *(["force"] if all(with_force) else []), "control", "target"]
+        head = [
+            "record",
+            "omega",
+            "forcing",
+            "stable",
+            "time",
+            *names,
+            "curve",
+            "amplitude",
+            "phase",
+            *(["force"] if all(with_force) else []),
+            "control",
+            "target",
+        ]
     unit_str = ", ".join(f"{k}={v}" for k, v in unit_items.items() if v)
     if unit_str:
         buf.write(f"# units: {unit_str}, time=s\n")
@@ -349,13 +405,32 @@ def write_csv(ds: xr.Dataset, path: str | os.PathLike[str]) -> Path:
         for k in range(r.n_samples):
             sig = [_fmt(v) for v in r.signals[k]]
             if kind == "lco":
-                row = [str(i), _fmt(r.param), stable, _fmt(t[k]), *sig, _fmt(r.frequency),
-                       _fmt(control[k]), _fmt(target[k])]
+                row = [
+                    str(i),
+                    _fmt(r.param),
+                    stable,
+                    _fmt(t[k]),
+                    *sig,
+                    _fmt(r.frequency),
+                    _fmt(control[k]),
+                    _fmt(target[k]),
+                ]
             else:
                 force = [_fmt(r.force[k])] if r.force is not None else []
-                row = [str(i), _fmt(r.omega), _fmt(r.forcing), stable, _fmt(t[k]), *sig,
-                       str(r.curve), _fmt(r.amplitude), _fmt(r.phase), *force,
-                       _fmt(control[k]), _fmt(target[k])]
+                row = [
+                    str(i),
+                    _fmt(r.omega),
+                    _fmt(r.forcing),
+                    stable,
+                    _fmt(t[k]),
+                    *sig,
+                    str(r.curve),
+                    _fmt(r.amplitude),
+                    _fmt(r.phase),
+                    *force,
+                    _fmt(control[k]),
+                    _fmt(target[k]),
+                ]
             writer.writerow(row)
     path = Path(path)
     atomic_write_text(path, buf.getvalue())
@@ -391,8 +466,10 @@ def load_thesis_curves(path: str | os.PathLike[str]) -> ThesisCurve:
         cells = s.split(",")
         if len(cells) != 3:
             raise BifidInputError(f"{path}, line {line_no}: expected 3 columns, got {len(cells)}.")
-        vals = [_float(c, name, line_no, str(path))
-                for c, name in zip(cells, ("speed", "heave", "pitch"), strict=True)]
+        vals = [
+            _float(c, name, line_no, str(path))
+            for c, name in zip(cells, ("speed", "heave", "pitch"), strict=True)
+        ]
         if not all(math.isfinite(v) for v in vals):
             raise BifidInputError(f"{path}, line {line_no}: values must be finite.")
         rows.append(vals)

@@ -54,8 +54,10 @@ def _em_coeffs(point: Any, key: str, path: Path, i: int) -> np.ndarray | None:
         return None
     arr = _vector(value, f"exp.data({i + 1}).{key}", path)
     if arr.shape[0] < 10:
-        raise BifidInputError(f"{path}: exp.data({i + 1}).{key} has {arr.shape[0]} values; "
-                              "expected 16 Fourier coefficients.")
+        raise BifidInputError(
+            f"{path}: exp.data({i + 1}).{key} has {arr.shape[0]} values; "
+            "expected 16 Fourier coefficients."
+        )
     return arr
 
 
@@ -110,11 +112,14 @@ def read_em_curve(path: str | os.PathLike[str], curve: int = 0) -> tuple[list[Fo
     for i, p in enumerate(points.reshape(-1)):
         where = f"exp.data({i + 1})"
         _struct(p, where, path)
-        f_hz = _scalar(getattr(p, "forcing_freq", None), f"{where}.forcing_freq", path,
-                       positive=True)
+        f_hz = _scalar(
+            getattr(p, "forcing_freq", None), f"{where}.forcing_freq", path, positive=True
+        )
         if f_hz >= fs / 2:
-            raise BifidInputError(f"{path}: {where}.forcing_freq = {f_hz:g} Hz is not below "
-                                  f"the Nyquist frequency {fs / 2:g} Hz.")
+            raise BifidInputError(
+                f"{path}: {where}.forcing_freq = {f_hz:g} Hz is not below "
+                f"the Nyquist frequency {fs / 2:g} Hz."
+            )
         freqs.append(f_hz)
         omega = 2 * np.pi * f_hz
         x = _vector(getattr(p, "x", None), f"{where}.x", path)
@@ -122,14 +127,18 @@ def read_em_curve(path: str | os.PathLike[str], curve: int = 0) -> tuple[list[Fo
         if n < 8:
             raise BifidInputError(f"{path}: {where}.x has only {n} samples.")
         base = _vector(getattr(p, "base_disp", None), f"{where}.base_disp", path, n)
-        control = (_vector(p.out, f"{where}.out", path, n) if hasattr(p, "out") else None)
-        x_target = (_vector(p.x_target, f"{where}.x_target", path, n)
-                    if hasattr(p, "x_target") else None)
+        control = _vector(p.out, f"{where}.out", path, n) if hasattr(p, "out") else None
+        x_target = (
+            _vector(p.x_target, f"{where}.x_target", path, n) if hasattr(p, "x_target") else None
+        )
         amp, x_mean = periodic_amplitude(x, omega, fs, n_harmonics=n_modes, trim=False)
         xc = _em_coeffs(p, "x_coeffs_ave", path, i)
         bc = _em_coeffs(p, "base_coeffs_ave", path, i)
         extra: dict[str, Any] = {
-            "file": path.name, "point": i + 1, "forcing_freq_hz": f_hz, "x_offset": x_mean,
+            "file": path.name,
+            "point": i + 1,
+            "forcing_freq_hz": f_hz,
+            "x_offset": x_mean,
             "x_max_raw": float(np.max(np.abs(x - x_mean))),
         }
         base_amp = _opt_scalar(p, "base_amp")
@@ -150,12 +159,22 @@ def read_em_curve(path: str | os.PathLike[str], curve: int = 0) -> tuple[list[Fo
             v = _opt_scalar(p, key)
             if v is not None:
                 extra[key] = v
-        records.append(ForcedRecord(
-            omega=omega, forcing=forcing, signals=(x - x_mean)[:, None], sample_rate=fs,
-            stable=None, force=EM_FORCE_SIGN * (base - float(np.mean(base))), control=control,
-            target=None if x_target is None else x_target - x_mean,
-            amplitude=amp, phase=None, curve=curve, extra=extra,
-        ))
+        records.append(
+            ForcedRecord(
+                omega=omega,
+                forcing=forcing,
+                signals=(x - x_mean)[:, None],
+                sample_rate=fs,
+                stable=None,
+                force=EM_FORCE_SIGN * (base - float(np.mean(base))),
+                control=control,
+                target=None if x_target is None else x_target - x_mean,
+                amplitude=amp,
+                phase=None,
+                curve=curve,
+                extra=extra,
+            )
+        )
     raw_name = getattr(exp, "name", "")
     name = raw_name if isinstance(raw_name, str) else ""
     if "backbone" in name.lower():
@@ -180,19 +199,27 @@ def em_dataset(paths: Sequence[str | os.PathLike[str]]) -> xr.Dataset:
         records.extend(recs)
         curves[str(c)] = {"file": p.name, "kind": kind, "n_points": len(recs)}
     return forced_dataset(
-        records, ["x"], observed="x", system="experiment",
-        settings={"format": "em", "files": [str(p) for p in paths],
-                  "amplitude": "max over one period of the 7-harmonic least-squares Fourier "
-                               "series of x (mean removed)",
-                  "forcing": "base_amp if stored, else |first harmonic of base_coeffs_ave|",
-                  "phase": "lag of x's first harmonic behind the force's (force = "
-                           "-base_disp: the lasers' signs are opposite), from time series",
-                  "force_sign": EM_FORCE_SIGN},
+        records,
+        ["x"],
+        observed="x",
+        system="experiment",
+        settings={
+            "format": "em",
+            "files": [str(p) for p in paths],
+            "amplitude": "max over one period of the 7-harmonic least-squares Fourier "
+            "series of x (mean removed)",
+            "forcing": "base_amp if stored, else |first harmonic of base_coeffs_ave|",
+            "phase": "lag of x's first harmonic behind the force's (force = "
+            "-base_disp: the lasers' signs are opposite), from time series",
+            "force_sign": EM_FORCE_SIGN,
+        },
         source=[str(p) for p in paths],
         signal_units={"x": ""},
         forcing_units="",
-        attrs={"rig": "electromagnetic oscillator, University of Bristol (thesis §3.2.1.1)",
-               "units_note": "x, base displacement and forcing are in the rig's recorded "
-                             "units (not stated in the source files)",
-               "curves": curves},
+        attrs={
+            "rig": "electromagnetic oscillator, University of Bristol (thesis §3.2.1.1)",
+            "units_note": "x, base displacement and forcing are in the rig's recorded "
+            "units (not stated in the source files)",
+            "curves": curves,
+        },
     )

@@ -67,8 +67,19 @@ def _stable_from_name(name: str) -> bool | None:
     return None
 
 
-_CBC_EXTRAS = ("error1", "error2", "error_tol", "freq_error", "picard", "success", "mean_pos",
-               "initial_amp", "initial_freq", "PicardTol", "PicardTol_Freq")
+_CBC_EXTRAS = (
+    "error1",
+    "error2",
+    "error_tol",
+    "freq_error",
+    "picard",
+    "success",
+    "mean_pos",
+    "initial_amp",
+    "initial_freq",
+    "PicardTol",
+    "PicardTol_Freq",
+)
 
 
 def read_flutter_cbc(path: str | os.PathLike[str]) -> LCORecord:
@@ -95,13 +106,16 @@ def read_flutter_cbc(path: str | os.PathLike[str]) -> LCORecord:
     data = _matrix(_need(m, "data", path, "5 × n channels"), "data", path, min_rows=4, min_cols=8)
     _finite_rows(data, (0, 1, 2, 3), "data", path)
     speed = _scalar(_need(m, "Wind_sped", path, "wind speed"), "Wind_sped", path)
-    freq_hz = _scalar(_need(m, "freq_actual", path, "LCO frequency [Hz]"), "freq_actual", path,
-                      positive=True)
+    freq_hz = _scalar(
+        _need(m, "freq_actual", path, "LCO frequency [Hz]"), "freq_actual", path, positive=True
+    )
     par = _experiment_par(m.get("exp"), path)
     fs = _scalar(par.sample_freq, "exp.par.sample_freq", path, positive=True)
     if freq_hz >= fs / 2:
-        raise BifidInputError(f"{path}: freq_actual = {freq_hz:g} Hz is not below the Nyquist "
-                              f"frequency {fs / 2:g} Hz.")
+        raise BifidInputError(
+            f"{path}: freq_actual = {freq_hz:g} Hz is not below the Nyquist "
+            f"frequency {fs / 2:g} Hz."
+        )
     omega = 2 * np.pi * freq_hz
 
     heave_v = data[0]
@@ -160,16 +174,24 @@ def flutter_cbc_dataset(paths: Sequence[str | os.PathLike[str]]) -> xr.Dataset:
         "heave_m_per_V": HEAVE_M_PER_V,
         "pitch_wrap_value": PITCH_WRAP_VALUE,
         "pitch_gap_fill": "linear interpolation for runs <= 25 samples, else 7-harmonic "
-                          "Fourier series of the good samples at freq_actual",
+        "Fourier series of the good samples at freq_actual",
         "centring": "heave: record mean of row 1; pitch: record mean after gap filling",
         "stable_from": "file name (CBC_stable_* stable, CBC_unstable_*/CBC_v* unstable)",
     }
     return lco_dataset(
-        records, ["h", "alpha"], param_name="U", param_units="m/s", system="experiment",
-        settings=settings, source=[str(p) for p in paths],
+        records,
+        ["h", "alpha"],
+        param_name="U",
+        param_units="m/s",
+        system="experiment",
+        settings=settings,
+        source=[str(p) for p in paths],
         signal_units={"h": "m", "alpha": "rad"},
-        attrs={"rig": "flutter rig, University of Bristol (thesis §3.3.3)",
-               "control_units": "V (shaker force command)", "target_units": "m"},
+        attrs={
+            "rig": "flutter rig, University of Bristol (thesis §3.3.3)",
+            "control_units": "V (shaker force command)",
+            "target_units": "m",
+        },
     )
 
 
@@ -223,16 +245,20 @@ def load_free_decay(path: str | os.PathLike[str]) -> FreeDecay:
     """
     path = Path(path)
     m = load_mat(path)
-    data = _matrix(_need(m, "data", path, "2 × n: pitch, heave"), "data", path, min_rows=2,
-                   min_cols=8)
+    data = _matrix(
+        _need(m, "data", path, "2 × n: pitch, heave"), "data", path, min_rows=2, min_cols=8
+    )
     _finite_rows(data, (0, 1), "data", path)
     fs = _scalar(_need(m, "fs", path, "sample rate [Hz]"), "fs", path, positive=True)
     n = data.shape[1]
     rest = slice(n - n // 4, n)
     p_off = float(np.median(data[0, rest]))
     h_off = float(np.median(data[1, rest]))
-    guesses = {k: v for k in sorted(m) if k not in ("data", "time", "fs", "ans")
-               and (v := _opt_scalar(m, k)) is not None}
+    guesses = {
+        k: v
+        for k in sorted(m)
+        if k not in ("data", "time", "fs", "ans") and (v := _opt_scalar(m, k)) is not None
+    }
     return FreeDecay(
         time=np.arange(n) / fs,
         heave=(data[1] - h_off) * HEAVE_M_PER_V,
@@ -294,8 +320,9 @@ def _rate_of_time(t: np.ndarray, path: Path) -> float:
     dt = np.diff(t)
     step = float(np.median(dt)) if dt.size else 0.0
     if not step > 0 or np.max(np.abs(dt - step)) > 1e-3 * step:
-        raise BifidInputError(f"{path}: time is not uniformly increasing; cannot tell the "
-                              "sample rate.")
+        raise BifidInputError(
+            f"{path}: time is not uniformly increasing; cannot tell the sample rate."
+        )
     return float(f"{(t.shape[0] - 1) / (t[-1] - t[0]):.9g}")  # 250.0, not 249.99999999999977
 
 
@@ -311,16 +338,21 @@ def load_open_loop(path: str | os.PathLike[str]) -> OpenLoopRun:
     (250 Hz in the rig's files) from the file's ``time`` vector."""
     path = Path(path)
     m = load_mat(path)
-    data = _matrix(_need(m, "data", path, "6 × n channels"), "data", path, min_rows=2,
-                   min_cols=8)
+    data = _matrix(_need(m, "data", path, "6 × n channels"), "data", path, min_rows=2, min_cols=8)
     _finite_rows(data, (1,), "data", path)
     speed = _scalar(_need(m, "Speed", path, "wind speed [m/s]"), "Speed", path)
     heave = (data[1] - float(np.mean(data[1]))) * OPEN_LOOP_MM_PER_V
-    fs = _rate_of_time(_vector(_need(m, "time", path, "sample times [s]"), "time", path,
-                               n=data.shape[1]), path)
-    return OpenLoopRun(speed=speed, direction=_direction(path.name),
-                       time=np.arange(heave.shape[0]) / fs, heave_mm=heave, sample_rate=fs,
-                       source=str(path))
+    fs = _rate_of_time(
+        _vector(_need(m, "time", path, "sample times [s]"), "time", path, n=data.shape[1]), path
+    )
+    return OpenLoopRun(
+        speed=speed,
+        direction=_direction(path.name),
+        time=np.arange(heave.shape[0]) / fs,
+        heave_mm=heave,
+        sample_rate=fs,
+        source=str(path),
+    )
 
 
 def open_loop_summary(paths: Sequence[str | os.PathLike[str]]) -> dict[str, np.ndarray]:
@@ -342,8 +374,9 @@ def open_loop_summary(paths: Sequence[str | os.PathLike[str]]) -> dict[str, np.n
         "direction": np.array([r.direction for r in runs]),
         "amplitude_mm": np.array([a for a, _ in amps]),
         "spread_mm": np.array([s for _, s in amps]),
-        "frequency_hz": np.array([estimate_frequency(r.heave_mm, r.sample_rate) / (2 * np.pi)
-                                  for r in runs]),
+        "frequency_hz": np.array(
+            [estimate_frequency(r.heave_mm, r.sample_rate) / (2 * np.pi) for r in runs]
+        ),
         "file": np.array([Path(r.source).name for r in runs]),
     }
     order = np.argsort(out["speed"], kind="stable")
@@ -362,20 +395,36 @@ def open_loop_dataset(paths: Sequence[str | os.PathLike[str]]) -> xr.Dataset:
     for p in paths:
         run = load_open_loop(p)
         amp, spread = run.amplitude_mm()
-        records.append(LCORecord(
-            param=run.speed, signals=run.heave_mm[:, None] / 1000.0,
-            sample_rate=run.sample_rate,
-            stable=None if run.direction in ("Hammer", "") else True,
-            frequency=estimate_frequency(run.heave_mm, run.sample_rate),
-            extra={"file": p.name, "direction": run.direction, "amplitude_mm": amp,
-                   "spread_mm": spread},
-        ))
+        records.append(
+            LCORecord(
+                param=run.speed,
+                signals=run.heave_mm[:, None] / 1000.0,
+                sample_rate=run.sample_rate,
+                stable=None if run.direction in ("Hammer", "") else True,
+                frequency=estimate_frequency(run.heave_mm, run.sample_rate),
+                extra={
+                    "file": p.name,
+                    "direction": run.direction,
+                    "amplitude_mm": amp,
+                    "spread_mm": spread,
+                },
+            )
+        )
     return lco_dataset(
-        records, ["h"], param_name="U", param_units="m/s", system="experiment",
-        settings={"format": "flutter-openloop", "files": [str(p) for p in paths],
-                  "heave_mm_per_V": OPEN_LOOP_MM_PER_V, "centring": "record mean",
-                  "stable_from": "sweep runs stable (open-loop attractors), hammer unknown"},
-        source=[str(p) for p in paths], signal_units={"h": "m"},
+        records,
+        ["h"],
+        param_name="U",
+        param_units="m/s",
+        system="experiment",
+        settings={
+            "format": "flutter-openloop",
+            "files": [str(p) for p in paths],
+            "heave_mm_per_V": OPEN_LOOP_MM_PER_V,
+            "centring": "record mean",
+            "stable_from": "sweep runs stable (open-loop attractors), hammer unknown",
+        },
+        source=[str(p) for p in paths],
+        signal_units={"h": "m"},
         attrs={"rig": "flutter rig, University of Bristol, open-loop sweeps 2018"},
     )
 
@@ -423,8 +472,9 @@ def load_ulco_amplitudes(path: str | os.PathLike[str]) -> ULCOAmplitudes:
         unstable_pitch=opt("angle", len(u)),
         unstable_freq_hz=opt("freq", len(u)),
         stable_speed=su,
-        stable_heave=_vector(_need(m, "s_amp", path, "stable heave amplitudes"), "s_amp", path,
-                             len(su)),
+        stable_heave=_vector(
+            _need(m, "s_amp", path, "stable heave amplitudes"), "s_amp", path, len(su)
+        ),
         stable_pitch=opt("sangle", len(su)),
         flutter_speed=_scalar(_need(m, "flutter_speed", path, "m/s"), "flutter_speed", path),
         flutter_freq_hz=_scalar(_need(m, "flutter_freq", path, "Hz"), "flutter_freq", path),

@@ -22,8 +22,7 @@ from bifid.io import check_input_file, jsonable
 
 __all__ = ["FORMATS", "detect_format", "expand_paths", "import_files"]
 
-FORMATS = ("auto", "flutter-cbc", "flutter-openloop", "em-scurve", "em-backbone", "csv",
-           "netcdf")
+FORMATS = ("auto", "flutter-cbc", "flutter-openloop", "em-scurve", "em-backbone", "csv", "netcdf")
 _SUFFIXES = (".mat", ".csv", ".nc", ".nc4", ".h5")
 _HDF5_MAGIC = b"\x89HDF\r\n\x1a\n"
 
@@ -174,8 +173,9 @@ def import_files(
     families = {("em" if f.startswith("em-") else f) for f in formats}
     if len(families) > 1:
         listing = ", ".join(f"{p.name}: {f}" for p, f in zip(files, formats, strict=True))
-        raise BifidInputError(f"input files have different formats ({listing}); import each "
-                              "format separately.")
+        raise BifidInputError(
+            f"input files have different formats ({listing}); import each format separately."
+        )
     family = families.pop()
     if family == "flutter-cbc":
         ds = flutter_cbc_dataset(files)

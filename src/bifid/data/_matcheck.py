@@ -48,8 +48,10 @@ def check_mat_v5(blob: bytes, where: str = "file") -> None:
         _fail(where, "no MAT v5 header (MATLAB v4 files are not supported)")
     (version,) = struct.unpack(e + "H", blob[124:126])
     if version == 0x0200:
-        raise BifidInputError(f"{where}: MATLAB v7.3 (HDF5) files are not supported; re-save "
-                              "with save(..., '-v7') in MATLAB.")
+        raise BifidInputError(
+            f"{where}: MATLAB v7.3 (HDF5) files are not supported; re-save "
+            "with save(..., '-v7') in MATLAB."
+        )
     if version != 0x0100:
         _fail(where, f"unknown version 0x{version:04x}")
     _walk(blob, 128, len(blob), e, where, depth=0, top=True)
@@ -59,8 +61,9 @@ _ITEMSIZE = {1: 1, 2: 1, 3: 2, 4: 2, 5: 4, 6: 4, 7: 4, 9: 8, 12: 8, 13: 8, 16: 1
 _NUMERIC_DATA = frozenset({1, 2, 3, 4, 5, 6, 7, 9, 12, 13})
 
 
-def _elements(buf: bytes, pos: int, end: int, e: str, where: str,
-              top: bool) -> list[tuple[int, int, int]]:
+def _elements(
+    buf: bytes, pos: int, end: int, e: str, where: str, top: bool
+) -> list[tuple[int, int, int]]:
     """Parse a sequence of data elements: ``[(type, content_start, nbytes), ...]``."""
     out = []
     while pos < end:
@@ -76,8 +79,11 @@ def _elements(buf: bytes, pos: int, end: int, e: str, where: str,
         else:
             mtype, nbytes, cstart = a, b, pos + 8
             if cstart + nbytes > end:
-                _fail(where, f"element at byte {pos} claims {nbytes} bytes, "
-                             f"only {end - cstart} remain (truncated file?)")
+                _fail(
+                    where,
+                    f"element at byte {pos} claims {nbytes} bytes, "
+                    f"only {end - cstart} remain (truncated file?)",
+                )
             size = min(8 + nbytes + (0 if top else (-nbytes) % 8), end - pos)
         if mtype not in VALID_TYPES:
             _fail(where, f"unknown data type {mtype} at byte {pos}")
@@ -97,8 +103,7 @@ def _walk(buf: bytes, pos: int, end: int, e: str, where: str, depth: int, top: b
         elif mtype == MI_MATRIX:
             _check_matrix(buf, cstart, cstart + nbytes, e, where, depth)
         elif top:
-            _fail(where, f"top-level element of type {mtype} at byte {cstart} "
-                         "(expected a matrix)")
+            _fail(where, f"top-level element of type {mtype} at byte {cstart} (expected a matrix)")
 
 
 def _check_compressed(data: bytes, e: str, where: str, depth: int) -> None:

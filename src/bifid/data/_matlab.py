@@ -75,8 +75,9 @@ def _scalar(value: Any, name: str, path: Path, *, positive: bool = False) -> flo
     try:
         arr = np.asarray(value, dtype=float)
     except (TypeError, ValueError):
-        raise BifidInputError(f"{path}: {name} must be a number, found {type(value).__name__}.")\
-            from None
+        raise BifidInputError(
+            f"{path}: {name} must be a number, found {type(value).__name__}."
+        ) from None
     if arr.size != 1:
         raise BifidInputError(f"{path}: {name} must be a scalar, found shape {arr.shape}.")
     v = float(arr.reshape(()))
@@ -153,8 +154,7 @@ def _experiment_par(exp: Any, path: Path) -> Any:
     par = getattr(exp, "par", None)
     if par is None or getattr(par, "sample_freq", None) is None:
         raise BifidInputError(
-            f"{path}: exp.par.sample_freq (the sample rate) is missing; bifid does not "
-            "assume one."
+            f"{path}: exp.par.sample_freq (the sample rate) is missing; bifid does not assume one."
         )
     return par
 

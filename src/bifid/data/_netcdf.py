@@ -37,8 +37,19 @@ __all__ = [
 
 # refuse to load more than this into memory (hostile files can declare huge dimensions)
 MAX_DATASET_BYTES = int(os.environ.get("BIFID_MAX_DATASET_BYTES", 4 * 1024**3))
-_RESERVED_ATTRS = {"bifid_kind", "system", "source", "settings", "bifid_version", "created",
-                   "signal_units", "observed", "forcing_units", "param_name", "param_units"}
+_RESERVED_ATTRS = {
+    "bifid_kind",
+    "system",
+    "source",
+    "settings",
+    "bifid_version",
+    "created",
+    "signal_units",
+    "observed",
+    "forcing_units",
+    "param_name",
+    "param_units",
+}
 
 
 def _settings_json(settings: Mapping[str, Any] | str | None) -> str:
@@ -114,14 +125,18 @@ def _common(records: Sequence[LCORecord | ForcedRecord], names: list[str]) -> di
             target[i, :n] = r.target
     stable = np.array([-1 if r.stable is None else int(r.stable) for r in records], dtype=np.int8)
     return {
-        "n_samples": (("record",), np.array([r.n_samples for r in records], dtype=np.int64),
-                      {"long_name": "number of valid samples"}),
-        "sample_rate": (("record",), np.array([r.sample_rate for r in records]),
-                        {"units": "Hz"}),
-        "stable": (("record",), stable,
-                   {"long_name": "stability", "flag_values": "1 stable, 0 unstable, -1 unknown"}),
-        "signals": (("record", "time", "signal"), sig,
-                    {"long_name": "measured outputs (centred)"}),
+        "n_samples": (
+            ("record",),
+            np.array([r.n_samples for r in records], dtype=np.int64),
+            {"long_name": "number of valid samples"},
+        ),
+        "sample_rate": (("record",), np.array([r.sample_rate for r in records]), {"units": "Hz"}),
+        "stable": (
+            ("record",),
+            stable,
+            {"long_name": "stability", "flag_values": "1 stable, 0 unstable, -1 unknown"},
+        ),
+        "signals": (("record", "time", "signal"), sig, {"long_name": "measured outputs (centred)"}),
         "control": (("record", "time"), control, {"long_name": "control signal (0 when none)"}),
         "target": (("record", "time"), target, {"long_name": "control target (NaN when none)"}),
         "control_rms": (("record",), crms, {"long_name": "RMS of the control signal"}),
@@ -143,8 +158,14 @@ def _extras(records: Sequence[LCORecord | ForcedRecord]) -> dict[str, Any]:
     return out
 
 
-def _attrs(kind: str, system: str, settings: Any, source: str | Sequence[str],
-           units: dict[str, str], attrs: Mapping[str, Any] | None) -> dict[str, Any]:
+def _attrs(
+    kind: str,
+    system: str,
+    settings: Any,
+    source: str | Sequence[str],
+    units: dict[str, str],
+    attrs: Mapping[str, Any] | None,
+) -> dict[str, Any]:
     from bifid import __version__
 
     if not isinstance(source, str):
@@ -223,12 +244,21 @@ def lco_dataset(
     names = _signal_names(signal_names, recs[0].signals.shape[1])
     units = _units(signal_units, names)
     data = _common(recs, names)
-    data["param"] = (("record",), np.array([r.param for r in recs]),
-                     {"name": str(param_name), "units": str(param_units)})
-    data["frequency"] = (("record",), np.array([r.frequency for r in recs]),
-                         {"units": "rad/s", "long_name": "angular frequency of the orbit"})
-    data["amplitude"] = (("record", "signal"), np.stack([r.amplitude for r in recs]),
-                         {"long_name": "max_t |x(t)| of the centred signals"})
+    data["param"] = (
+        ("record",),
+        np.array([r.param for r in recs]),
+        {"name": str(param_name), "units": str(param_units)},
+    )
+    data["frequency"] = (
+        ("record",),
+        np.array([r.frequency for r in recs]),
+        {"units": "rad/s", "long_name": "angular frequency of the orbit"},
+    )
+    data["amplitude"] = (
+        ("record", "signal"),
+        np.stack([r.amplitude for r in recs]),
+        {"long_name": "max_t |x(t)| of the centred signals"},
+    )
     data.update(_extras(recs))
     ds = xr.Dataset(
         data,
@@ -268,27 +298,54 @@ def forced_dataset(
     units = _units(signal_units, names)
     data = _common(recs, names)
     n_time = max(r.n_samples for r in recs)
-    amp = np.array([r.amplitude if r.amplitude is not None else np.max(np.abs(r.signals[:, j]))
-                    for r in recs])
-    phase = np.array([
-        r.phase if r.phase is not None
-        else (phase_lag(r.signals[:, j], r.force, r.omega, r.sample_rate)
-              if r.force is not None and r.omega > 0 else np.nan)
-        for r in recs
-    ])
-    data["omega"] = (("record",), np.array([r.omega for r in recs]),
-                     {"units": "rad/s", "long_name": "forcing frequency"})
-    data["forcing"] = (("record",), np.array([r.forcing for r in recs]),
-                       {"units": str(forcing_units), "long_name": "forcing amplitude"})
-    data["amplitude"] = (("record",), amp, {"units": units[observed],
-                                            "long_name": f"max_t |{observed}(t)|"})
-    data["phase"] = (("record",), phase,
-                     {"units": "rad", "long_name": "lag of the observed first harmonic behind "
-                      "the force, in [-pi/2, 3pi/2)"})
-    data["force"] = (("record", "time"), _pad([r.force for r in recs], n_time),
-                     {"units": str(forcing_units), "long_name": "forcing signal (NaN if absent)"})
-    data["curve"] = (("record",), np.array([r.curve for r in recs], dtype=np.int64),
-                     {"long_name": "id of the curve (S-curve, FRC, backbone) of each point"})
+    amp = np.array(
+        [r.amplitude if r.amplitude is not None else np.max(np.abs(r.signals[:, j])) for r in recs]
+    )
+    phase = np.array(
+        [
+            r.phase
+            if r.phase is not None
+            else (
+                phase_lag(r.signals[:, j], r.force, r.omega, r.sample_rate)
+                if r.force is not None and r.omega > 0
+                else np.nan
+            )
+            for r in recs
+        ]
+    )
+    data["omega"] = (
+        ("record",),
+        np.array([r.omega for r in recs]),
+        {"units": "rad/s", "long_name": "forcing frequency"},
+    )
+    data["forcing"] = (
+        ("record",),
+        np.array([r.forcing for r in recs]),
+        {"units": str(forcing_units), "long_name": "forcing amplitude"},
+    )
+    data["amplitude"] = (
+        ("record",),
+        amp,
+        {"units": units[observed], "long_name": f"max_t |{observed}(t)|"},
+    )
+    data["phase"] = (
+        ("record",),
+        phase,
+        {
+            "units": "rad",
+            "long_name": "lag of the observed first harmonic behind the force, in [-pi/2, 3pi/2)",
+        },
+    )
+    data["force"] = (
+        ("record", "time"),
+        _pad([r.force for r in recs], n_time),
+        {"units": str(forcing_units), "long_name": "forcing signal (NaN if absent)"},
+    )
+    data["curve"] = (
+        ("record",),
+        np.array([r.curve for r in recs], dtype=np.int64),
+        {"long_name": "id of the curve (S-curve, FRC, backbone) of each point"},
+    )
     data.update(_extras(recs))
     ds = xr.Dataset(
         data,
@@ -340,8 +397,9 @@ def load_dataset(path: str | os.PathLike[str]) -> xr.Dataset:
     where = str(path)
     check_self_contained(path, where)
     try:
-        with xr.open_dataset(path, engine="h5netcdf", decode_times=False,
-                             decode_timedelta=False) as raw:
+        with xr.open_dataset(
+            path, engine="h5netcdf", decode_times=False, decode_timedelta=False
+        ) as raw:
             if raw.nbytes > MAX_DATASET_BYTES:
                 raise BifidInputError(
                     f"{where}: dataset would take {raw.nbytes / 1e9:.1f} GB in memory "
@@ -473,9 +531,9 @@ def _record_extras(ds: xr.Dataset, i: int) -> dict[str, Any]:
             v = v.decode("utf-8", errors="replace")
         if isinstance(v, str):
             if v:
-                out[name[len(EXTRA_PREFIX):]] = str(v)
+                out[name[len(EXTRA_PREFIX) :]] = str(v)
         elif np.isfinite(v):
-            out[name[len(EXTRA_PREFIX):]] = float(v)
+            out[name[len(EXTRA_PREFIX) :]] = float(v)
     return out
 
 
@@ -493,16 +551,18 @@ def lco_records(ds: xr.Dataset) -> list[LCORecord]:
         n = int(ds["n_samples"].values[i])
         target = ds["target"].values[i, :n]
         s = int(ds["stable"].values[i])
-        out.append(LCORecord(
-            param=float(ds["param"].values[i]),
-            signals=ds["signals"].values[i, :n, :],
-            sample_rate=float(ds["sample_rate"].values[i]),
-            stable=None if s < 0 else bool(s),
-            control=ds["control"].values[i, :n],
-            target=None if np.all(np.isnan(target)) else target,
-            frequency=float(ds["frequency"].values[i]),
-            extra=_record_extras(ds, i),
-        ))
+        out.append(
+            LCORecord(
+                param=float(ds["param"].values[i]),
+                signals=ds["signals"].values[i, :n, :],
+                sample_rate=float(ds["sample_rate"].values[i]),
+                stable=None if s < 0 else bool(s),
+                control=ds["control"].values[i, :n],
+                target=None if np.all(np.isnan(target)) else target,
+                frequency=float(ds["frequency"].values[i]),
+                extra=_record_extras(ds, i),
+            )
+        )
     return out
 
 
@@ -516,20 +576,22 @@ def forced_records(ds: xr.Dataset) -> list[ForcedRecord]:
         force = ds["force"].values[i, :n]
         s = int(ds["stable"].values[i])
         phase = float(ds["phase"].values[i])
-        out.append(ForcedRecord(
-            omega=float(ds["omega"].values[i]),
-            forcing=float(ds["forcing"].values[i]),
-            signals=ds["signals"].values[i, :n, :],
-            sample_rate=float(ds["sample_rate"].values[i]),
-            stable=None if s < 0 else bool(s),
-            force=None if np.all(np.isnan(force)) else force,
-            control=ds["control"].values[i, :n],
-            target=None if np.all(np.isnan(target)) else target,
-            amplitude=float(ds["amplitude"].values[i]),
-            phase=phase,
-            curve=int(ds["curve"].values[i]),
-            extra=_record_extras(ds, i),
-        ))
+        out.append(
+            ForcedRecord(
+                omega=float(ds["omega"].values[i]),
+                forcing=float(ds["forcing"].values[i]),
+                signals=ds["signals"].values[i, :n, :],
+                sample_rate=float(ds["sample_rate"].values[i]),
+                stable=None if s < 0 else bool(s),
+                force=None if np.all(np.isnan(force)) else force,
+                control=ds["control"].values[i, :n],
+                target=None if np.all(np.isnan(target)) else target,
+                amplitude=float(ds["amplitude"].values[i]),
+                phase=phase,
+                curve=int(ds["curve"].values[i]),
+                extra=_record_extras(ds, i),
+            )
+        )
     return out
 
 
@@ -564,6 +626,9 @@ def combine_datasets(datasets: Sequence[xr.Dataset], source: str | None = None) 
                 r.curve += curve_offset
             curve_offset = max(r.curve for r in recs) + 1 if recs else curve_offset
             records.extend(recs)
-    kw["source"] = source if source is not None else json.dumps(
-        [str(ds.attrs.get("source", "")) for ds in datasets])
+    kw["source"] = (
+        source
+        if source is not None
+        else json.dumps([str(ds.attrs.get("source", "")) for ds in datasets])
+    )
     return (lco_dataset if kind == "lco" else forced_dataset)(records, **kw)

@@ -97,8 +97,11 @@ def validate_dataset(ds: xr.Dataset, where: str = "dataset") -> xr.Dataset:
     if not np.all(np.isfinite(n_samples)) or np.any(n_samples != np.round(n_samples)):
         _fail(where, "n_samples must be integers.")
     if np.any(n_samples < 1) or np.any(n_samples > n_time):
-        _fail(where, f"n_samples must lie in 1..{n_time} (the time length), "
-              f"found {int(n_samples.min())}..{int(n_samples.max())}.")
+        _fail(
+            where,
+            f"n_samples must lie in 1..{n_time} (the time length), "
+            f"found {int(n_samples.min())}..{int(n_samples.max())}.",
+        )
     n_samples = n_samples.astype(np.int64)
     mask = _valid_mask(n_samples, n_time)
 
@@ -113,8 +116,11 @@ def validate_dataset(ds: xr.Dataset, where: str = "dataset") -> xr.Dataset:
     bad = ~np.isfinite(signals) & mask[:, :, None]
     if np.any(bad):
         r = int(np.argwhere(bad)[0, 0])
-        _fail(where, f"signals of record {r} contain NaN/inf within its n_samples "
-              f"({int(bad.sum())} bad values in all).")
+        _fail(
+            where,
+            f"signals of record {r} contain NaN/inf within its n_samples "
+            f"({int(bad.sum())} bad values in all).",
+        )
     control = _numeric(where, ds, "control")
     if np.any(~np.isfinite(control) & mask):
         _fail(where, "control must be finite within each record (0 when there is no control).")
@@ -139,8 +145,9 @@ def validate_dataset(ds: xr.Dataset, where: str = "dataset") -> xr.Dataset:
         if str(name).startswith(EXTRA_PREFIX):
             var = ds[name]
             if var.dims != ("record",) or var.dtype.kind not in "biufUSO":
-                _fail(where, f"extra variable {name!r} must be a numeric or string (record,) "
-                      "array.")
+                _fail(
+                    where, f"extra variable {name!r} must be a numeric or string (record,) array."
+                )
 
     out = ds.copy()
     out["n_samples"] = ("record", n_samples, dict(ds["n_samples"].attrs))
@@ -151,8 +158,11 @@ def validate_dataset(ds: xr.Dataset, where: str = "dataset") -> xr.Dataset:
         values[nan_pad] = np.nan  # broadcasts over the signal axis of `signals`
         out[name] = (ds[name].dims, values, dict(ds[name].attrs))
     if kind == "forced":
-        out["curve"] = ("record", _numeric(where, ds, "curve").astype(np.int64),
-                        dict(ds["curve"].attrs))
+        out["curve"] = (
+            "record",
+            _numeric(where, ds, "curve").astype(np.int64),
+            dict(ds["curve"].attrs),
+        )
     return out
 
 
@@ -164,8 +174,11 @@ def _check_structure(ds: xr.Dataset, where: str) -> tuple[str, list[str]]:
     if isinstance(kind, bytes):
         kind = kind.decode("utf-8", errors="replace")
     if kind is None:
-        _fail(where, "not a bifid dataset (attribute 'bifid_kind' is missing); "
-              "import raw measurements with `bifid import`.")
+        _fail(
+            where,
+            "not a bifid dataset (attribute 'bifid_kind' is missing); "
+            "import raw measurements with `bifid import`.",
+        )
     if not isinstance(kind, str) or kind not in KINDS:
         _fail(where, f"unknown bifid_kind {kind!r}; expected one of {', '.join(KINDS)}.")
     for dim in ("record", "time", "signal"):

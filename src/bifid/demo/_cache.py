@@ -63,21 +63,32 @@ class StageCache:
         if self.refresh:
             return False
         entry = self.entries.get(stage)
-        ok = (entry is not None and entry.get("key") == key
-              and all((self.directory / f).exists() for f in files))
+        ok = (
+            entry is not None
+            and entry.get("key") == key
+            and all((self.directory / f).exists() for f in files)
+        )
         if ok:
             self.reused.append(stage)
         return ok
 
     def done(self, stage: str, key: str, seconds: float, **info: Any) -> None:
         """Record that ``stage`` finished with ``key`` (manifest rewritten atomically)."""
-        self.entries[stage] = {"key": key, "seconds": float(seconds),
-                               "finished": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
-                               **jsonable(info)}
+        self.entries[stage] = {
+            "key": key,
+            "seconds": float(seconds),
+            "finished": time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime()),
+            **jsonable(info),
+        }
         atomic_write_text(self.path, json.dumps(self.entries, indent=2, sort_keys=True))
 
-    def ensure(self, stage: str, key: str, files: Iterable[str | Path],
-               build: Callable[[], Mapping[str, Any] | None]) -> float:
+    def ensure(
+        self,
+        stage: str,
+        key: str,
+        files: Iterable[str | Path],
+        build: Callable[[], Mapping[str, Any] | None],
+    ) -> float:
         """Run ``build`` unless ``stage`` is fresh; record it; return the seconds spent.
 
         ``build`` writes the stage's ``files`` and may return facts to keep in the manifest.

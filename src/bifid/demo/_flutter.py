@@ -45,8 +45,16 @@ class FlutterDemoSettings:
     truth_range: tuple[float, float] = (14.0, 20.0)
     # untrained test speeds: (U, stable)
     test_points: tuple[tuple[float, bool], ...] = (
-        (15.25, True), (15.75, True), (16.25, True), (16.75, True), (17.25, True),
-        (15.25, False), (15.75, False), (16.25, False), (16.75, False), (17.25, False),
+        (15.25, True),
+        (15.75, True),
+        (16.25, True),
+        (16.75, True),
+        (17.25, True),
+        (15.25, False),
+        (15.75, False),
+        (16.25, False),
+        (16.75, False),
+        (17.25, False),
     )
     model: dict[str, Any] = field(default_factory=lambda: {"n_ensemble": 3, "seed": 0})
     # mechanistic fit (ch. 4): k_a2, k_a3 from a start off by these factors
@@ -55,16 +63,29 @@ class FlutterDemoSettings:
 
     def stage_settings(self) -> dict[str, dict[str, Any]]:
         d = asdict(self)
-        truth = {"range": d["truth_range"], "tests": d["test_points"], "n_mesh": 64,
-                 "speeds": d["speeds"]}
+        truth = {
+            "range": d["truth_range"],
+            "tests": d["test_points"],
+            "n_mesh": 64,
+            "speeds": d["speeds"],
+        }
         campaign = {k: d[k] for k in ("speeds", "noise_fraction", "sample_rate", "seed")}
         mech = {"on": d["mechanistic"], "start": d["mechanistic_start"], "free": ["ka2", "ka3"]}
-        return {"truth": truth, "campaign": campaign, "model": dict(d["model"]),
-                "mechanistic": mech}
+        return {
+            "truth": truth,
+            "campaign": campaign,
+            "model": dict(d["model"]),
+            "mechanistic": mech,
+        }
 
 
-def run_flutter_demo(out: Path, settings: FlutterDemoSettings | None = None, *,
-                     refresh: bool = False, progress: bool = True) -> dict[str, Any]:
+def run_flutter_demo(
+    out: Path,
+    settings: FlutterDemoSettings | None = None,
+    *,
+    refresh: bool = False,
+    progress: bool = True,
+) -> dict[str, Any]:
     """Run (or reuse) every stage and write ``out/report.html``; returns the summary."""
     from bifid.demo._truth import flutter_truth, load_truth
 
@@ -79,16 +100,26 @@ def run_flutter_demo(out: Path, settings: FlutterDemoSettings | None = None, *,
     keys["model"] = settings_key({**st["model"], "campaign": keys["campaign"]})
     keys["mechanistic"] = settings_key({**st["mechanistic"], "campaign": keys["campaign"]})
     timings: dict[str, float] = {}
-    stages = ["truth", "campaign", "model", *(["mechanistic"] if cfg.mechanistic else []),
-              "compare"]
+    stages = [
+        "truth",
+        "campaign",
+        "model",
+        *(["mechanistic"] if cfg.mechanistic else []),
+        "compare",
+    ]
 
     with Stages(stages, enabled=progress) as bar:
         # 1. ground truth
         bar.start("truth", "continuation of the true model")
         timings["truth"] = cache.ensure(
-            "truth", keys["truth"], ["truth.json", "truth.npz"],
-            lambda: flutter_truth(out, cfg.truth_range, cfg.test_points,
-                                  measured_speeds=cfg.speeds) and None)
+            "truth",
+            keys["truth"],
+            ["truth.json", "truth.npz"],
+            lambda: (
+                flutter_truth(out, cfg.truth_range, cfg.test_points, measured_speeds=cfg.speeds)
+                and None
+            ),
+        )
         truth, tarr = load_truth(out)
 
         # 2. virtual experiment
@@ -99,8 +130,7 @@ def run_flutter_demo(out: Path, settings: FlutterDemoSettings | None = None, *,
             n, fails = _campaign(out / "dataset.nc", cfg, noise, bar)
             return {"noise": noise, "n_points": n, "failures": fails}
 
-        timings["campaign"] = cache.ensure("campaign", keys["campaign"], ["dataset.nc"],
-                                           campaign)
+        timings["campaign"] = cache.ensure("campaign", keys["campaign"], ["dataset.nc"], campaign)
         from bifid.data import load_dataset
 
         data = load_dataset(out / "dataset.nc")
@@ -111,7 +141,8 @@ def run_flutter_demo(out: Path, settings: FlutterDemoSettings | None = None, *,
 
         def fit_model() -> None:
             HopfHybridModel(**cfg.model).fit(data).save(
-                out / "model", settings={"demo": "flutter", **st["model"]})
+                out / "model", settings={"demo": "flutter", **st["model"]}
+            )
 
         timings["model"] = cache.ensure("model", keys["model"], ["model/model.json"], fit_model)
         model = HopfHybridModel.load(out / "model")
@@ -135,8 +166,11 @@ def run_flutter_demo(out: Path, settings: FlutterDemoSettings | None = None, *,
                     write_mechanistic_failure(out, str(exc))
 
             timings["mechanistic"] = cache.ensure(
-                "mechanistic", keys["mechanistic"], ["mechanistic.json", "mechanistic.npz"],
-                mechanistic)
+                "mechanistic",
+                keys["mechanistic"],
+                ["mechanistic.json", "mechanistic.npz"],
+                mechanistic,
+            )
             mech = load_mechanistic(out, truth)
 
         # 4. comparison, figures, report
@@ -146,29 +180,44 @@ def run_flutter_demo(out: Path, settings: FlutterDemoSettings | None = None, *,
 
         errors = compare(model, truth, tarr)
         if mech is not None and mech["summary"].get("failed"):
-            errors["checks"]["mechanistic_params"] = check(math.inf,
-                                                           CHECKS["mechanistic_params_rel"])
+            errors["checks"]["mechanistic_params"] = check(
+                math.inf, CHECKS["mechanistic_params_rel"]
+            )
         elif mech is not None:
             ms = mech["summary"]
             errors["checks"]["mechanistic_params"] = check(
-                max(ms["param_rel_error"].values()), CHECKS["mechanistic_params_rel"], "")
+                max(ms["param_rel_error"].values()), CHECKS["mechanistic_params_rel"], ""
+            )
             errors["checks"]["mechanistic_speeds"] = check(
-                max(ms["hopf_U_error"], ms["fold_U_error"]), CHECKS["mechanistic_U"], "m/s")
+                max(ms["hopf_U_error"], ms["fold_U_error"]), CHECKS["mechanistic_U"], "m/s"
+            )
         timings["compare"] = time.perf_counter() - t0
         summary = {
             "system": "flutter",
             "stages_reused": list(cache.reused),
             "campaign": _campaign_summary(data, cache.info("campaign")),
-            "truth": {"hopf_U": truth["hopf"]["U"],
-                      "fold_U": truth["fold"]["U"] if truth["fold"] else None},
+            "truth": {
+                "hopf_U": truth["hopf"]["U"],
+                "fold_U": truth["fold"]["U"] if truth["fold"] else None,
+            },
             "prediction": errors["prediction"],
             "errors": errors["errors"],
             "checks": errors["checks"],
             "mechanistic": mech["summary"] if mech else None,
             "timings_s": timings,
         }
-        write_report(out, summary, model, data, truth, tarr, errors, cfg, mech,
-                     run_time=time.perf_counter() - t_all)
+        write_report(
+            out,
+            summary,
+            model,
+            data,
+            truth,
+            tarr,
+            errors,
+            cfg,
+            mech,
+            run_time=time.perf_counter() - t_all,
+        )
         summary["wall_time_s"] = time.perf_counter() - t_all
         summary["files"] = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
     return summary
@@ -192,15 +241,21 @@ def _campaign(path: Path, cfg: FlutterDemoSettings, noise: dict[str, float], bar
 
     def on_point(pt) -> None:
         count[0] += 1
-        bar.note(f"U={pt.param:.4g} m/s {'stable' if pt.stable else 'unstable'}: "
-                 f"{count[0]} LCOs")
+        bar.note(f"U={pt.param:.4g} m/s {'stable' if pt.stable else 'unstable'}: {count[0]} LCOs")
 
     with warnings.catch_warnings():
         # each failure is also returned, recorded in the manifest and listed in the report
         warnings.simplefilter("ignore", ConvergenceWarning)
-        result = ppcbc_campaign("flutter", param="U", values=cfg.speeds, noise=noise,
-                                seed=cfg.seed, rig_options={"sample_rate": cfg.sample_rate},
-                                out=path, on_point=on_point)
+        result = ppcbc_campaign(
+            "flutter",
+            param="U",
+            values=cfg.speeds,
+            noise=noise,
+            seed=cfg.seed,
+            rig_options={"sample_rate": cfg.sample_rate},
+            out=path,
+            on_point=on_point,
+        )
     if count[0] == 0:
         raise ConvergenceError("the virtual PP-CBC campaign converged no LCO at all.")
     return count[0], [f.to_json() for f in result.failures]

@@ -27,6 +27,7 @@ from bifid.errors import ConvergenceError, ConvergenceWarning
 
 __all__ = ["ForcedDemoSettings", "run_forced_demo"]
 
+
 @dataclass(frozen=True)
 class ForcedDemoSettings:
     """What the forced demo does (every field enters the cache keys of its stages)."""
@@ -43,16 +44,28 @@ class ForcedDemoSettings:
     def stage_settings(self) -> dict[str, dict[str, Any]]:
         d = asdict(self)
         return {
-            "truth": {k: d[k] for k in ("test_forcings", "omega_range", "omegas",
-                                        "forcing_range", "backbone_range")},
-            "campaign": {k: d[k] for k in ("omegas", "forcing_range", "noise_fraction",
-                                           "seed")},
+            "truth": {
+                k: d[k]
+                for k in (
+                    "test_forcings",
+                    "omega_range",
+                    "omegas",
+                    "forcing_range",
+                    "backbone_range",
+                )
+            },
+            "campaign": {k: d[k] for k in ("omegas", "forcing_range", "noise_fraction", "seed")},
             "model": dict(d["model"]),
         }
 
 
-def run_forced_demo(out: Path, settings: ForcedDemoSettings | None = None, *,
-                    refresh: bool = False, progress: bool = True) -> dict[str, Any]:
+def run_forced_demo(
+    out: Path,
+    settings: ForcedDemoSettings | None = None,
+    *,
+    refresh: bool = False,
+    progress: bool = True,
+) -> dict[str, Any]:
     """Run (or reuse) every stage and write ``out/report.html``; returns the summary."""
     from bifid.demo._truth import forced_truth, load_truth
 
@@ -68,9 +81,21 @@ def run_forced_demo(out: Path, settings: ForcedDemoSettings | None = None, *,
     with Stages(["truth", "campaign", "model", "compare"], enabled=progress) as bar:
         bar.start("truth", "continuation of the true model")
         timings["truth"] = cache.ensure(
-            "truth", keys["truth"], ["truth.json", "truth.npz"],
-            lambda: forced_truth(out, cfg.test_forcings, cfg.omega_range, cfg.backbone_range,
-                                 cfg.omegas, (0.0, cfg.forcing_range[1])) and None)
+            "truth",
+            keys["truth"],
+            ["truth.json", "truth.npz"],
+            lambda: (
+                forced_truth(
+                    out,
+                    cfg.test_forcings,
+                    cfg.omega_range,
+                    cfg.backbone_range,
+                    cfg.omegas,
+                    (0.0, cfg.forcing_range[1]),
+                )
+                and None
+            ),
+        )
         truth, tarr = load_truth(out)
 
         bar.start("campaign", "virtual CBC S-curves")
@@ -81,8 +106,7 @@ def run_forced_demo(out: Path, settings: ForcedDemoSettings | None = None, *,
             n, fails = _campaign(out / "dataset.nc", cfg, noise, bar)
             return {"noise": noise, "n_points": n, "failures": fails}
 
-        timings["campaign"] = cache.ensure("campaign", keys["campaign"], ["dataset.nc"],
-                                           campaign)
+        timings["campaign"] = cache.ensure("campaign", keys["campaign"], ["dataset.nc"], campaign)
         from bifid.data import load_dataset
 
         data = load_dataset(out / "dataset.nc")
@@ -92,7 +116,8 @@ def run_forced_demo(out: Path, settings: ForcedDemoSettings | None = None, *,
 
         def fit_model() -> None:
             ForcedKernelModel(**cfg.model).fit(data).save(
-                out / "model", settings={"demo": "forced", **st["model"]})
+                out / "model", settings={"demo": "forced", **st["model"]}
+            )
 
         timings["model"] = cache.ensure("model", keys["model"], ["model/model.json"], fit_model)
         model = ForcedKernelModel.load(out / "model")
@@ -107,18 +132,30 @@ def run_forced_demo(out: Path, settings: ForcedDemoSettings | None = None, *,
         summary = {
             "system": "shaw_pierre",
             "stages_reused": list(cache.reused),
-            "campaign": {"n_points": int(data.sizes["record"]),
-                         "n_curves": len(np.unique(data["curve"].values)),
-                         "omegas": list(cfg.omegas), "noise": info.get("noise"),
-                         "failures": len(info.get("failures", []) or []),
-                         "seconds": info.get("seconds", math.nan)},
+            "campaign": {
+                "n_points": int(data.sizes["record"]),
+                "n_curves": len(np.unique(data["curve"].values)),
+                "omegas": list(cfg.omegas),
+                "noise": info.get("noise"),
+                "failures": len(info.get("failures", []) or []),
+                "seconds": info.get("seconds", math.nan),
+            },
             "prediction": result["prediction"],
             "errors": result["errors"],
             "checks": result["checks"],
             "timings_s": timings,
         }
-        write_report(out, summary, model, data, truth, tarr, result, cfg,
-                     run_time=time.perf_counter() - t_all)
+        write_report(
+            out,
+            summary,
+            model,
+            data,
+            truth,
+            tarr,
+            result,
+            cfg,
+            run_time=time.perf_counter() - t_all,
+        )
         summary["wall_time_s"] = time.perf_counter() - t_all
         summary["files"] = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
     return summary
@@ -144,8 +181,14 @@ def _campaign(path: Path, cfg: ForcedDemoSettings, noise: float, bar) -> tuple[i
         warnings.simplefilter("ignore", ConvergenceWarning)
         for k, omega in enumerate(cfg.omegas):
             result = forced_campaign(
-                "shaw_pierre", "scurve", omega=omega, span=cfg.forcing_range,
-                noise=noise if noise > 0 else None, seed=cfg.seed + k, on_point=on_point)
+                "shaw_pierre",
+                "scurve",
+                omega=omega,
+                span=cfg.forcing_range,
+                noise=noise if noise > 0 else None,
+                seed=cfg.seed + k,
+                on_point=on_point,
+            )
             failures += [f.to_json() for f in result.failures]
             if result.dataset is not None:
                 datasets.append(result.dataset)

@@ -26,8 +26,11 @@ def compare(model, truth: dict[str, Any], tarr: dict[str, np.ndarray], cfg) -> d
     rows, frcs = [], []
     for tf in truth["frcs"]:
         F = tf["forcing"]
-        row: dict[str, Any] = {"forcing": F, "truth_peak": tf["peak"],
-                               "truth_folds": [f["omega"] for f in tf["folds"]]}
+        row: dict[str, Any] = {
+            "forcing": F,
+            "truth_peak": tf["peak"],
+            "truth_folds": [f["omega"] for f in tf["folds"]],
+        }
         try:
             br = model.frc(F, cfg.omega_range, n_samples=40, seed=cfg.seed)
             amp = np.asarray(br.data["amplitude"])[:, 0]
@@ -36,12 +39,20 @@ def compare(model, truth: dict[str, Any], tarr: dict[str, np.ndarray], cfg) -> d
             row["model_folds"] = [float(sp.param) for sp in br.special("fold")]
             row["peak_rel"] = abs(amp[k] / tf["peak"]["amplitude"] - 1)
             tfo, mfo = sorted(row["truth_folds"]), sorted(row["model_folds"])
-            row["fold_omega_rel"] = (max((abs(m / t - 1) for m, t in zip(mfo, tfo, strict=True)),
-                                         default=0.0) if len(tfo) == len(mfo) else math.inf)
+            row["fold_omega_rel"] = (
+                max((abs(m / t - 1) for m, t in zip(mfo, tfo, strict=True)), default=0.0)
+                if len(tfo) == len(mfo)
+                else math.inf
+            )
             frcs.append(br)
         except BifidError as exc:
-            row.update(model_peak=None, model_folds=[], peak_rel=math.inf,
-                       fold_omega_rel=math.inf, note=str(exc))
+            row.update(
+                model_peak=None,
+                model_folds=[],
+                peak_rel=math.inf,
+                fold_omega_rel=math.inf,
+                note=str(exc),
+            )
             frcs.append(None)
         rows.append(row)
     # backbone over the trained amplitude range
@@ -61,11 +72,21 @@ def compare(model, truth: dict[str, Any], tarr: dict[str, np.ndarray], cfg) -> d
         "fold_omega_rel": check(err["fold_omega_rel_max"], CHECKS["fold_omega_rel"]),
         "backbone_rel": check(err["backbone_rel_max"], CHECKS["backbone_rel"]),
     }
-    pred = {"frcs": [{"forcing": r["forcing"], "peak": r["model_peak"],
-                      "folds": r["model_folds"]} for r in rows],
-            "forcing_scale": float(getattr(model, "forcing_scale_", math.nan))}
-    return {"prediction": pred, "errors": err, "checks": checks, "rows": rows,
-            "frc_branches": frcs, "backbone": bb}
+    pred = {
+        "frcs": [
+            {"forcing": r["forcing"], "peak": r["model_peak"], "folds": r["model_folds"]}
+            for r in rows
+        ],
+        "forcing_scale": float(getattr(model, "forcing_scale_", math.nan)),
+    }
+    return {
+        "prediction": pred,
+        "errors": err,
+        "checks": checks,
+        "rows": rows,
+        "frc_branches": frcs,
+        "backbone": bb,
+    }
 
 
 def _band(ax, br, color) -> None:
@@ -85,36 +106,49 @@ def frc_figure(result, data, truth, tarr, path: Path) -> Path:
     ax = fig.subplots()
     for i, tf in enumerate(truth["frcs"]):
         c = COLORS[i % len(COLORS)]
-        om, a, st = (tarr[f"frc{i}_omega"], tarr[f"frc{i}_amplitude"],
-                     tarr[f"frc{i}_stable"].astype(bool))
-        ax.plot(np.where(st, om, np.nan), a, "k-", lw=2.6, alpha=0.5,
-                label="truth" if i == 0 else None)
+        om, a, st = (
+            tarr[f"frc{i}_omega"],
+            tarr[f"frc{i}_amplitude"],
+            tarr[f"frc{i}_stable"].astype(bool),
+        )
+        ax.plot(
+            np.where(st, om, np.nan), a, "k-", lw=2.6, alpha=0.5, label="truth" if i == 0 else None
+        )
         ax.plot(np.where(~st, om, np.nan), a, "k--", lw=2.6, alpha=0.5)
         br = result["frc_branches"][i]
         if br is not None:
             _band(ax, br, c)
             ma = np.asarray(br.data["amplitude"])[:, 0]
-            ax.plot(br.data["omega"], ma, color=c, lw=1.3,
-                    label=f"model F = {tf['forcing']:g}")
+            ax.plot(br.data["omega"], ma, color=c, lw=1.3, label=f"model F = {tf['forcing']:g}")
     bb = result["backbone"]
-    ax.plot(tarr["backbone_omega"], tarr["backbone_amplitude"], "k:", lw=1.5,
-            label="truth backbone")
-    ax.plot(bb.data["omega"], bb.params, color="tab:red", lw=1.6, ls="-.",
-            label="model backbone")
+    ax.plot(
+        tarr["backbone_omega"], tarr["backbone_amplitude"], "k:", lw=1.5, label="truth backbone"
+    )
+    ax.plot(bb.data["omega"], bb.params, color="tab:red", lw=1.6, ls="-.", label="model backbone")
     om_d, a_d, st_d = data["omega"].values, data["amplitude"].values, data["stable"].values
-    ax.plot(om_d[st_d != 0], a_d[st_d != 0], "o", color="0.2", ms=3.5,
-            label="measured by CBC (S-curves)")
+    ax.plot(
+        om_d[st_d != 0],
+        a_d[st_d != 0],
+        "o",
+        color="0.2",
+        ms=3.5,
+        label="measured by CBC (S-curves)",
+    )
     if np.any(st_d == 0):
-        ax.plot(om_d[st_d == 0], a_d[st_d == 0], "x", color="tab:red", ms=5,
-                label="measured (unstable)")
+        ax.plot(
+            om_d[st_d == 0], a_d[st_d == 0], "x", color="tab:red", ms=5, label="measured (unstable)"
+        )
     lo, hi = tarr["frc0_omega"].min(), tarr["frc0_omega"].max()
     ax.set_xlim(lo, hi)
     top = max(float(np.max(tarr[f"frc{i}_amplitude"])) for i in range(len(truth["frcs"])))
     ax.set_ylim(0, 1.2 * top)
     ax.set_xlabel("forcing frequency Ω [rad/s]")
     ax.set_ylabel("amplitude max|x1|")
-    ax.set_title("shaw_pierre: FRCs at forcing levels never measured as FRCs "
-                 "(black: truth, dashed unstable; shaded: 95 % band)", fontsize=9)
+    ax.set_title(
+        "shaw_pierre: FRCs at forcing levels never measured as FRCs "
+        "(black: truth, dashed unstable; shaded: 95 % band)",
+        fontsize=9,
+    )
     ax.grid(alpha=0.3)
     ax.legend(fontsize=7, loc="upper left")
     fig.tight_layout()
@@ -134,8 +168,16 @@ def scurve_figure(data, tarr, cfg, path: Path) -> Path:
             ax.plot(np.where(st, f, np.nan), a, "-", color=c, lw=1)
             ax.plot(np.where(~st, f, np.nan), a, "--", color=c, lw=1)
         m = curves == i
-        ax.plot(data["forcing"].values[m], data["amplitude"].values[m], "o", color=c, ms=4,
-                mec="k", mew=0.4, label=f"Ω = {om:g}")
+        ax.plot(
+            data["forcing"].values[m],
+            data["amplitude"].values[m],
+            "o",
+            color=c,
+            ms=4,
+            mec="k",
+            mew=0.4,
+            label=f"Ω = {om:g}",
+        )
     ax.set_xlabel("forcing amplitude F")
     ax.set_ylabel("amplitude max|x1|")
     ax.set_title("measured S-curves (dots, virtual CBC) over continuation (lines)", fontsize=9)
@@ -145,47 +187,77 @@ def scurve_figure(data, tarr, cfg, path: Path) -> Path:
     return save_figure(fig, path)
 
 
-def write_report(out: Path, summary, model, data, truth, tarr, result, cfg, *,
-                 run_time: float) -> Path:
+def write_report(
+    out: Path, summary, model, data, truth, tarr, result, cfg, *, run_time: float
+) -> Path:
     """Figures (PNG) and the self-contained ``report.html``."""
     from dataclasses import asdict
 
     from bifid.report.html import Report
 
-    figs = {"frc": frc_figure(result, data, truth, tarr, out / "frc.png"),
-            "scurves": scurve_figure(data, tarr, cfg, out / "scurves.png")}
+    figs = {
+        "frc": frc_figure(result, data, truth, tarr, out / "frc.png"),
+        "scurves": scurve_figure(data, tarr, cfg, out / "scurves.png"),
+    }
     c = summary["campaign"]
     chk = result["checks"]
     rep = Report(
         "bifid demo: forced Shaw–Pierre oscillator — S-curves to FRCs",
-        intro=(f"Virtual CBC measured {c['n_points']} points on {c['n_curves']} S-curves "
-               f"(noise {cfg.noise_fraction:.0%} of the response amplitude). The kernel model "
-               f"of the reduced dynamics on the spectral submanifold, fitted to them, predicts "
-               f"whole FRCs at {len(truth['frcs'])} forcing levels and the backbone. "
-               f"{sum(v['passed'] for v in chk.values())} of {len(chk)} checks pass."),
+        intro=(
+            f"Virtual CBC measured {c['n_points']} points on {c['n_curves']} S-curves "
+            f"(noise {cfg.noise_fraction:.0%} of the response amplitude). The kernel model "
+            f"of the reduced dynamics on the spectral submanifold, fitted to them, predicts "
+            f"whole FRCs at {len(truth['frcs'])} forcing levels and the backbone. "
+            f"{sum(v['passed'] for v in chk.values())} of {len(chk)} checks pass."
+        ),
     )
     sec = rep.section("Prediction against the truth")
-    labels = {"peak_rel": "FRC peak amplitude error (max)",
-              "fold_omega_rel": "FRC fold frequency error (max)",
-              "backbone_rel": "backbone frequency error over the trained amplitudes (max)"}
-    sec.append(rep.table(["quantity", "value", "limit"],
-                         [[labels[k], _pct(v["value"]), _pct(v["limit"])]
-                          for k, v in chk.items()],
-                         passed=[v["passed"] for v in chk.values()]))
-    sec.append(rep.figure(figs["frc"], "Predicted FRCs with 95 % posterior bands, backbone, "
-                          "and the measured points."))
-    sec.append(rep.table(
-        ["F", "truth peak", "model peak", "peak err", "truth folds Ω", "model folds Ω",
-         "fold err"],
-        [[r["forcing"], r["truth_peak"]["amplitude"],
-          (r["model_peak"] or {}).get("amplitude", "—"), _pct(r["peak_rel"]),
-          ", ".join(f"{v:.5f}" for v in r["truth_folds"]) or "none",
-          ", ".join(f"{v:.5f}" for v in r["model_folds"]) or "none",
-          _pct(r["fold_omega_rel"])] for r in result["rows"]]))
+    labels = {
+        "peak_rel": "FRC peak amplitude error (max)",
+        "fold_omega_rel": "FRC fold frequency error (max)",
+        "backbone_rel": "backbone frequency error over the trained amplitudes (max)",
+    }
+    sec.append(
+        rep.table(
+            ["quantity", "value", "limit"],
+            [[labels[k], _pct(v["value"]), _pct(v["limit"])] for k, v in chk.items()],
+            passed=[v["passed"] for v in chk.values()],
+        )
+    )
+    sec.append(
+        rep.figure(
+            figs["frc"],
+            "Predicted FRCs with 95 % posterior bands, backbone, and the measured points.",
+        )
+    )
+    sec.append(
+        rep.table(
+            [
+                "F",
+                "truth peak",
+                "model peak",
+                "peak err",
+                "truth folds Ω",
+                "model folds Ω",
+                "fold err",
+            ],
+            [
+                [
+                    r["forcing"],
+                    r["truth_peak"]["amplitude"],
+                    (r["model_peak"] or {}).get("amplitude", "—"),
+                    _pct(r["peak_rel"]),
+                    ", ".join(f"{v:.5f}" for v in r["truth_folds"]) or "none",
+                    ", ".join(f"{v:.5f}" for v in r["model_folds"]) or "none",
+                    _pct(r["fold_omega_rel"]),
+                ]
+                for r in result["rows"]
+            ],
+        )
+    )
     sec = rep.section("The virtual experiment")
     sec.append(rep.figure(figs["scurves"], "Measured S-curves over the true ones."))
-    return finish_report(rep, out, model, summary, {"demo": "forced", **asdict(cfg)},
-                         run_time)
+    return finish_report(rep, out, model, summary, {"demo": "forced", **asdict(cfg)}, run_time)
 
 
 def _pct(v: float) -> str:

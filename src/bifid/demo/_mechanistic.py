@@ -46,15 +46,23 @@ def fit_mechanistic(out: Path, data, start: tuple[float, float]) -> dict[str, An
         "start": {"ka2": float(p0[s.index("ka2")]), "ka3": float(p0[s.index("ka3")])},
         "fitted": {k: float(v) for k, v in res.params.items()},
         "true": {"ka2": true["ka2"], "ka3": true["ka3"]},
-        "rms_start_m": res.rms_start, "rms_m": res.rms, "converged": res.lm.converged,
-        "iterations": res.lm.n_iter, "fit_seconds": res.time_s,
+        "rms_start_m": res.rms_start,
+        "rms_m": res.rms,
+        "converged": res.lm.converged,
+        "iterations": res.lm.n_iter,
+        "fit_seconds": res.time_s,
         "hopf_U": float(br.meta["start_param"]),
         "fold_U": float(folds[0].param) if folds else None,
     }
     amps = np.asarray(br.data["amplitude_centred"])
     with atomic_path(out / "mechanistic.npz") as tmp, open(tmp, "wb") as fh:
-        np.savez(fh, U=np.asarray(br.params), h=amps[:, ih], alpha=amps[:, ia],
-                 stable=np.asarray(br.stable, dtype=float))
+        np.savez(
+            fh,
+            U=np.asarray(br.params),
+            h=amps[:, ih],
+            alpha=amps[:, ia],
+            stable=np.asarray(br.stable, dtype=float),
+        )
     atomic_write_text(out / "mechanistic.json", json.dumps(jsonable(facts), indent=2))
     return facts
 
@@ -68,10 +76,14 @@ def load_mechanistic(out: Path, truth: dict[str, Any]) -> dict[str, Any]:
         branch = {k: z[k] for k in z.files}
     summary = {
         **facts,
-        "param_rel_error": {k: abs(facts["fitted"][k] / facts["true"][k] - 1)
-                            for k in facts["fitted"]},
+        "param_rel_error": {
+            k: abs(facts["fitted"][k] / facts["true"][k] - 1) for k in facts["fitted"]
+        },
         "hopf_U_error": abs(facts["hopf_U"] - truth["hopf"]["U"]),
-        "fold_U_error": (abs(facts["fold_U"] - truth["fold"]["U"])
-                         if facts["fold_U"] is not None and truth["fold"] else math.nan),
+        "fold_U_error": (
+            abs(facts["fold_U"] - truth["fold"]["U"])
+            if facts["fold_U"] is not None and truth["fold"]
+            else math.nan
+        ),
     }
     return {"summary": summary, "branch": branch}

@@ -32,9 +32,13 @@ class Stages:
             )
 
             self._progress = Progress(
-                TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                TimeElapsedColumn(), TextColumn("{task.fields[note]}"),
-                console=Console(file=sys.stderr), transient=False,
+                TextColumn("[bold]{task.description}"),
+                BarColumn(),
+                MofNCompleteColumn(),
+                TimeElapsedColumn(),
+                TextColumn("{task.fields[note]}"),
+                console=Console(file=sys.stderr),
+                transient=False,
             )
             self._progress.start()
             self._task = self._progress.add_task("demo", total=len(self.names), note="")

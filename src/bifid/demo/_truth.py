@@ -18,8 +18,7 @@ from bifid.io import atomic_path, atomic_write_text, jsonable
 __all__ = ["flutter_truth", "forced_truth", "load_truth"]
 
 
-def _save(directory: Path, stem: str, facts: dict[str, Any], arrays: dict[str, np.ndarray]
-          ) -> None:
+def _save(directory: Path, stem: str, facts: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
     with atomic_path(directory / f"{stem}.npz") as tmp, open(tmp, "wb") as fh:
         np.savez(fh, **{k: np.asarray(v, dtype=float) for k, v in arrays.items()})
     atomic_write_text(directory / f"{stem}.json", json.dumps(jsonable(facts), indent=2))
@@ -33,9 +32,13 @@ def load_truth(directory: Path, stem: str = "truth") -> tuple[dict[str, Any], di
     return facts, arrays
 
 
-def flutter_truth(directory: Path, param_range: tuple[float, float],
-                  test_points: Sequence[tuple[float, bool]], n_mesh: int = 64,
-                  measured_speeds: Sequence[float] = ()) -> dict[str, Any]:
+def flutter_truth(
+    directory: Path,
+    param_range: tuple[float, float],
+    test_points: Sequence[tuple[float, bool]],
+    n_mesh: int = 64,
+    measured_speeds: Sequence[float] = (),
+) -> dict[str, Any]:
     """Continuation of the flutter model: Hopf point, cycle fold, the orbit branch, and the
     exact orbits (Newton-corrected on the collocation mesh) at ``test_points`` =
     ``[(U, stable), ...]``; also the exact amplitudes of both LCOs at ``measured_speeds``
@@ -55,8 +58,12 @@ def flutter_truth(directory: Path, param_range: tuple[float, float],
     orbits = br.solutions[:, : M * n].reshape(-1, M, n)
     periods = np.asarray(br.data["period"])
     test_orbits, test_periods = [], []
-    extra = [(float(U), st) for U in measured_speeds for st in (True, False)
-             if U > (folds[0].param if folds else -np.inf) and U < hopf.param]
+    extra = [
+        (float(U), st)
+        for U in measured_speeds
+        for st in (True, False)
+        if U > (folds[0].param if folds else -np.inf) and U < hopf.param
+    ]
     for U, want_stable in [*test_points, *extra]:
         idx = np.flatnonzero(br.stable == want_stable)
         if idx.size == 0:
@@ -76,8 +83,12 @@ def flutter_truth(directory: Path, param_range: tuple[float, float],
     ih, ia = s.state_index("h"), s.state_index("alpha")
     facts = {
         "system": "flutter",
-        "hopf": {"U": hopf.param, "omega": hopf.data["omega"],
-                 "lyapunov": hopf.data["lyapunov"], "criticality": hopf.data["criticality"]},
+        "hopf": {
+            "U": hopf.param,
+            "omega": hopf.data["omega"],
+            "lyapunov": hopf.data["lyapunov"],
+            "criticality": hopf.data["criticality"],
+        },
         "fold": ({"U": folds[0].param} if folds else None),
         "amplitude": "max_t |x(t) - mean(x)| (centred, as measured)",
         "measured_speeds": [
@@ -85,25 +96,37 @@ def flutter_truth(directory: Path, param_range: tuple[float, float],
             for (U, st), a in zip(extra, all_amps[nt:], strict=True)
         ],
         "test_points": [
-            {"U": float(U), "stable": bool(st), "period": float(T), "omega": 2 * np.pi / T,
-             "h": float(a[ih]), "alpha": float(a[ia])}
+            {
+                "U": float(U),
+                "stable": bool(st),
+                "period": float(T),
+                "omega": 2 * np.pi / T,
+                "h": float(a[ih]),
+                "alpha": float(a[ia]),
+            }
             for (U, st), T, a in zip(test_points, test_periods[:nt], amps, strict=True)
         ],
     }
     arrays = {
-        "U": br.params, "stable": br.stable.astype(float), "period": periods,
-        "h": branch_amps[:, ih], "alpha": branch_amps[:, ia],
-        "test_orbits": test_orbits_arr[:, :, [ih, ia]] if len(test_orbits)
-        else np.zeros((0, M, 2)),
+        "U": br.params,
+        "stable": br.stable.astype(float),
+        "period": periods,
+        "h": branch_amps[:, ih],
+        "alpha": branch_amps[:, ia],
+        "test_orbits": test_orbits_arr[:, :, [ih, ia]] if len(test_orbits) else np.zeros((0, M, 2)),
     }
     _save(directory, "truth", facts, arrays)
     return facts
 
 
-def forced_truth(directory: Path, forcings: Sequence[float],
-                 omega_range: tuple[float, float], amplitude_range: tuple[float, float],
-                 omegas: Sequence[float] = (), forcing_range: tuple[float, float] = (0, 1)
-                 ) -> dict[str, Any]:
+def forced_truth(
+    directory: Path,
+    forcings: Sequence[float],
+    omega_range: tuple[float, float],
+    amplitude_range: tuple[float, float],
+    omegas: Sequence[float] = (),
+    forcing_range: tuple[float, float] = (0, 1),
+) -> dict[str, Any]:
     """FRCs of ``shaw_pierre`` at ``forcings``, S-curves at ``omegas`` and the backbone."""
     from bifid.continuation import backbone, frc, scurve
     from bifid.systems import get_system
@@ -115,12 +138,16 @@ def forced_truth(directory: Path, forcings: Sequence[float],
         br = frc(s, float(F), omega_range)
         amp = np.asarray(br.data["observed_amplitude"])
         k = int(np.argmax(amp))
-        facts["frcs"].append({
-            "forcing": float(F),
-            "peak": {"omega": float(br.data["omega"][k]), "amplitude": float(amp[k])},
-            "folds": [{"omega": float(f.data["omega"]), "amplitude": float(f.data["amplitude"])}
-                      for f in br.special("fold")],
-        })
+        facts["frcs"].append(
+            {
+                "forcing": float(F),
+                "peak": {"omega": float(br.data["omega"][k]), "amplitude": float(amp[k])},
+                "folds": [
+                    {"omega": float(f.data["omega"]), "amplitude": float(f.data["amplitude"])}
+                    for f in br.special("fold")
+                ],
+            }
+        )
         arrays[f"frc{i}_omega"] = br.data["omega"]
         arrays[f"frc{i}_amplitude"] = amp
         arrays[f"frc{i}_stable"] = br.stable.astype(float)

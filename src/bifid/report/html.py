@@ -55,12 +55,17 @@ class Report:
         p = Path(path)
         data = base64.b64encode(p.read_bytes()).decode("ascii")
         mime = "image/svg+xml" if p.suffix.lower() == ".svg" else "image/png"
-        return (f'<figure><img alt="{html.escape(caption)}" src="data:{mime};base64,{data}">'
-                f"<figcaption>{html.escape(caption)}</figcaption></figure>")
+        return (
+            f'<figure><img alt="{html.escape(caption)}" src="data:{mime};base64,{data}">'
+            f"<figcaption>{html.escape(caption)}</figcaption></figure>"
+        )
 
     @staticmethod
-    def table(header: Sequence[str], rows: Sequence[Sequence[Any]],
-              passed: Sequence[bool | None] | None = None) -> str:
+    def table(
+        header: Sequence[str],
+        rows: Sequence[Sequence[Any]],
+        passed: Sequence[bool | None] | None = None,
+    ) -> str:
         """A table; ``passed`` adds a last column marking each row's check."""
         head = "".join(f"<th>{html.escape(str(h))}</th>" for h in header)
         if passed is not None:
@@ -70,8 +75,13 @@ class Report:
             cells = "".join(f"<td>{html.escape(_fmt(v))}</td>" for v in row)
             if passed is not None:
                 ok = passed[i]
-                mark = ("" if ok is None else
-                        '<span class="ok">pass</span>' if ok else '<span class="bad">fail</span>')
+                mark = (
+                    ""
+                    if ok is None
+                    else '<span class="ok">pass</span>'
+                    if ok
+                    else '<span class="bad">fail</span>'
+                )
                 cells += f"<td>{mark}</td>"
             body.append(f"<tr>{cells}</tr>")
         return f"<table><thead><tr>{head}</tr></thead><tbody>{''.join(body)}</tbody></table>"
@@ -90,15 +100,22 @@ class Report:
             parts.append(f"<h2>{html.escape(heading)}</h2>")
             parts.extend(blocks)
         parts.append("<h2>Settings, versions, run time</h2>")
-        parts.append(self.table(["item", "value"], [
-            ["run time", f"{run_time_s:.1f} s"],
-            ["created", time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())],
-            *[[k, v] for k, v in versions().items()],
-        ]))
+        parts.append(
+            self.table(
+                ["item", "value"],
+                [
+                    ["run time", f"{run_time_s:.1f} s"],
+                    ["created", time.strftime("%Y-%m-%d %H:%M:%S UTC", time.gmtime())],
+                    *[[k, v] for k, v in versions().items()],
+                ],
+            )
+        )
         parts.append(self.code(dict(settings)))
-        return ("<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
-                f"<title>{html.escape(self.title)}</title><style>{_CSS}</style></head>"
-                f"<body>{''.join(parts)}</body></html>")
+        return (
+            "<!DOCTYPE html><html lang='en'><head><meta charset='utf-8'>"
+            f"<title>{html.escape(self.title)}</title><style>{_CSS}</style></head>"
+            f"<body>{''.join(parts)}</body></html>"
+        )
 
 
 def _fmt(v: Any) -> str:
@@ -112,8 +129,18 @@ def versions() -> dict[str, str]:
     import importlib.metadata as md
 
     out = {"python": platform.python_version(), "platform": platform.platform()}
-    for pkg in ("bifid", "jax", "jaxlib", "numpy", "scipy", "diffrax", "equinox", "optax",
-                "xarray", "matplotlib"):
+    for pkg in (
+        "bifid",
+        "jax",
+        "jaxlib",
+        "numpy",
+        "scipy",
+        "diffrax",
+        "equinox",
+        "optax",
+        "xarray",
+        "matplotlib",
+    ):
         try:
             out[pkg] = md.version(pkg)
         except md.PackageNotFoundError:

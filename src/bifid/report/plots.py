@@ -30,8 +30,15 @@ __all__ = ["STABLE", "UNSTABLE", "plot_curve", "plot_diagram", "save_figure"]
 STABLE = {"lw": 1.8}
 UNSTABLE = {"lw": 1.5, "ls": "--"}
 _COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown", "tab:pink")
-_MARKERS = {"hopf": "^", "cycle_fold": "s", "fold": "s", "peak": "D",
-            "period_doubling": "v", "torus": "o", "branch_point": "x"}
+_MARKERS = {
+    "hopf": "^",
+    "cycle_fold": "s",
+    "fold": "s",
+    "peak": "D",
+    "period_doubling": "v",
+    "torus": "o",
+    "branch_point": "x",
+}
 
 
 def _segments(x: np.ndarray, y: np.ndarray, stable: np.ndarray):
@@ -44,8 +51,9 @@ def _segments(x: np.ndarray, y: np.ndarray, stable: np.ndarray):
             start = i
 
 
-def plot_curve(ax: Any, x: Any, y: Any, stable: Any, *, label: str | None = None,
-               color: str | None = None) -> None:
+def plot_curve(
+    ax: Any, x: Any, y: Any, stable: Any, *, label: str | None = None, color: str | None = None
+) -> None:
     """Plot a curve solid where stable and dashed where unstable (one legend entry each)."""
     first = {True: True, False: True}
     for xs, ys, st in _segments(np.asarray(x), np.asarray(y), np.asarray(stable)):
@@ -105,14 +113,16 @@ def _equilibrium_curve(b: Branch, signal: str | None) -> tuple[np.ndarray, ...]:
     return np.array(x), np.array(y), np.array(st)
 
 
-def _draw_branch(ax: Any, d: Diagram, b: Branch, signal: str | None, color: str,
-                 label: str) -> None:
+def _draw_branch(
+    ax: Any, d: Diagram, b: Branch, signal: str | None, color: str, label: str
+) -> None:
     x = _x(d, b)
     stable = np.asarray(b.stable)
     known = stable.dtype == bool or not np.any(np.isnan(stable.astype(float)))
     if b.kind == "equilibrium":
-        plot_curve(ax, *_equilibrium_curve(b, signal), color="0.4",
-                   label=f"{label} equilibria".strip())
+        plot_curve(
+            ax, *_equilibrium_curve(b, signal), color="0.4", label=f"{label} equilibria".strip()
+        )
         return
     y, k = _amplitude(b, signal)
     if d.source == "measurement":
@@ -120,31 +130,55 @@ def _draw_branch(ax: Any, d: Diagram, b: Branch, signal: str | None, color: str,
         for value, marker, what in ((1.0, "o", "stable"), (0.0, "x", "unstable")):
             sel = st == value
             if np.any(sel):
-                ax.plot(x[sel], y[sel], marker, color=color, ls="none", ms=5,
-                        label=f"{label} {what}".strip())
+                ax.plot(
+                    x[sel],
+                    y[sel],
+                    marker,
+                    color=color,
+                    ls="none",
+                    ms=5,
+                    label=f"{label} {what}".strip(),
+                )
         if np.any(np.isnan(st)):
             sel = np.isnan(st)
-            ax.plot(x[sel], y[sel], "+", color=color, ls="none", ms=6,
-                    label=f"{label} (stability unknown)".strip())
+            ax.plot(
+                x[sel],
+                y[sel],
+                "+",
+                color=color,
+                ls="none",
+                ms=6,
+                label=f"{label} (stability unknown)".strip(),
+            )
     else:
-        plot_curve(ax, x, y, stable.astype(bool) if known else np.ones(len(b), bool),
-                   label=label, color=color)
+        plot_curve(
+            ax,
+            x,
+            y,
+            stable.astype(bool) if known else np.ones(len(b), bool),
+            label=label,
+            color=color,
+        )
     key = "observed_amplitude" if "observed_amplitude" in b.intervals else "amplitude"
     if key in b.intervals:
         lo, hi = (np.asarray(v, dtype=float) for v in b.intervals[key])
         if lo.ndim > 1:
             lo, hi = lo[:, k or 0], hi[:, k or 0]
         level = f" {100 * d.level:g} %" if d.level else ""
-        ax.fill_between(x, lo, hi, color=color, alpha=0.18, lw=0,
-                        label=f"{label}{level} band".strip())
+        ax.fill_between(
+            x, lo, hi, color=color, alpha=0.18, lw=0, label=f"{label}{level} band".strip()
+        )
 
 
 def _draw_special(ax: Any, d: Diagram, b: Branch, signal: str | None, color: str) -> None:
     for sp in b.special_points:
         marker = _MARKERS.get(sp.kind, "o")
         if sp.kind == "hopf" or (sp.kind == "fold" and b.kind == "equilibrium"):
-            yv = abs(float(np.asarray(sp.solution)[b.signals.index(signal)])) \
-                if signal in b.signals else 0.0
+            yv = (
+                abs(float(np.asarray(sp.solution)[b.signals.index(signal)]))
+                if signal in b.signals
+                else 0.0
+            )
         else:
             amp = np.asarray(sp.data.get("amplitude", np.nan), dtype=float)
             k = b.signals.index(signal) if (amp.ndim and signal in b.signals) else 0
@@ -159,11 +193,26 @@ def _draw_special(ax: Any, d: Diagram, b: Branch, signal: str | None, color: str
             lo_a, hi_a = (np.atleast_1d(np.asarray(v, float)) for v in sp.intervals["amplitude"])
             k = b.signals.index(signal) if (lo_a.size > 1 and signal in b.signals) else 0
             yerr = [[max(yv - lo_a[k], 0.0)], [max(hi_a[k] - yv, 0.0)]]
-        ax.errorbar([xv], [yv], xerr=xerr, yerr=yerr, fmt=marker, color="k", mfc=color, ms=7,
-                    capsize=3, zorder=5)
+        ax.errorbar(
+            [xv],
+            [yv],
+            xerr=xerr,
+            yerr=yerr,
+            fmt=marker,
+            color="k",
+            mfc=color,
+            ms=7,
+            capsize=3,
+            zorder=5,
+        )
         name = sp.kind.replace("_", " ")
-        ax.annotate(f"{name} {sp.param:.5g}", (xv, yv), textcoords="offset points",
-                    xytext=(6, 6), fontsize=8)
+        ax.annotate(
+            f"{name} {sp.param:.5g}",
+            (xv, yv),
+            textcoords="offset points",
+            xytext=(6, 6),
+            fontsize=8,
+        )
 
 
 def plot_diagram(
@@ -223,8 +272,11 @@ def plot_diagram(
     handles, _ = axes[0].get_legend_handles_labels()
     if handles:
         axes[0].legend(fontsize=8, loc="best")
-    xname = {"frc": "forcing frequency Ω", "scurve": "forcing amplitude F",
-             "backbone": "frequency Ω"}.get(kind, diagrams[0].param)
+    xname = {
+        "frc": "forcing frequency Ω",
+        "scurve": "forcing amplitude F",
+        "backbone": "frequency Ω",
+    }.get(kind, diagrams[0].param)
     xunit = units.get(diagrams[0].param, "rad/s" if kind in ("frc", "backbone") else "")
     axes[-1].set_xlabel(xname + (f" [{xunit}]" if xunit else ""))
     if title:
@@ -241,21 +293,29 @@ def _default_signals(d: Diagram) -> list[str]:
     return (displacements or names)[:2] or [""]
 
 
-def bifurcation_diagram(equilibria: Branch | None, orbits: Sequence[Branch],
-                        states: Sequence[str], *, title: str = "",
-                        units: dict[str, str] | None = None, param_unit: str = "") -> Figure:
+def bifurcation_diagram(
+    equilibria: Branch | None,
+    orbits: Sequence[Branch],
+    states: Sequence[str],
+    *,
+    title: str = "",
+    units: dict[str, str] | None = None,
+    param_unit: str = "",
+) -> Figure:
     """Equilibria and orbit branches as a figure (:func:`plot_diagram` of their diagram)."""
     branches = ([equilibria] if equilibria is not None else []) + list(orbits)
-    d = Diagram(kind="bifurcation", system=branches[0].system, param=branches[0].param,
-                branches=branches)
+    d = Diagram(
+        kind="bifurcation", system=branches[0].system, param=branches[0].param, branches=branches
+    )
     u = dict(units or {})
     if param_unit:
         u[branches[0].param] = param_unit
     return plot_diagram(d, labels=[""], signals=list(states), title=title, units=u)
 
 
-def forced_diagram(branches: Sequence[Branch], *, xkey: str, title: str = "",
-                   backbone: Branch | None = None) -> Figure:
+def forced_diagram(
+    branches: Sequence[Branch], *, xkey: str, title: str = "", backbone: Branch | None = None
+) -> Figure:
     """An FRC (``xkey="omega"``) or S-curve (``xkey="forcing"``), or a backbone."""
     kind = "backbone" if not branches else ("frc" if xkey == "omega" else "scurve")
     brs = list(branches) if branches else [backbone]

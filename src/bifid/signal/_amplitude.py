@@ -77,8 +77,13 @@ def spectral_tail(values: np.ndarray) -> float:
 
 
 def periodic_amplitude(
-    x: np.ndarray, omega: float, sample_rate: float, n_harmonics: int = 10, *,
-    trim: bool = True, n_grid: int = 2048,
+    x: np.ndarray,
+    omega: float,
+    sample_rate: float,
+    n_harmonics: int = 10,
+    *,
+    trim: bool = True,
+    n_grid: int = 2048,
 ) -> tuple[float, float]:
     """Noise-robust amplitude ``max_t |x(t) − x̄|`` of a sampled periodic signal (eq. 6.5,
     about the mean, as a rig measures it).

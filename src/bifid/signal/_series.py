@@ -37,8 +37,9 @@ __all__ = [
 ]
 
 
-def whole_periods(n_samples: int, omega: float, sample_rate: float, max_periods: int | None = None
-                  ) -> int:
+def whole_periods(
+    n_samples: int, omega: float, sample_rate: float, max_periods: int | None = None
+) -> int:
     """Number of trailing samples spanning the largest whole number of periods.
 
     Parameters
@@ -106,8 +107,12 @@ def uniform_basis(n_points: int, n_harmonics: int) -> np.ndarray:
 
 
 def fourier_project(
-    x: np.ndarray, theta: np.ndarray, n_harmonics: int, weights: np.ndarray | None = None,
-    *, basis: np.ndarray | None = None,
+    x: np.ndarray,
+    theta: np.ndarray,
+    n_harmonics: int,
+    weights: np.ndarray | None = None,
+    *,
+    basis: np.ndarray | None = None,
 ) -> np.ndarray:
     """Coefficients ``[c0, a_1..a_q, b_1..b_q]`` of ``x ≈ c0 + Σ a_j cos jθ + b_j sin jθ``.
 
@@ -143,8 +148,9 @@ def fourier_project(
     return np.linalg.lstsq(B, x, rcond=None)[0]
 
 
-def evaluate_series(coef: np.ndarray, theta: np.ndarray, *,
-                    basis: np.ndarray | None = None) -> np.ndarray:
+def evaluate_series(
+    coef: np.ndarray, theta: np.ndarray, *, basis: np.ndarray | None = None
+) -> np.ndarray:
     """``c0 + Σ a_j cos jθ + b_j sin jθ`` for ``coef = [c0, a_1..a_q, b_1..b_q]``
     (``basis``: ``fourier_basis(theta, q)`` computed before)."""
     coef = np.asarray(coef, dtype=float)

@@ -90,8 +90,10 @@ class Envelope:
             )
 
     def to_json(self) -> dict:
-        return {"states": {k: list(v) for k, v in self.states.items()},
-                "control_max": self.control_max}
+        return {
+            "states": {k: list(v) for k, v in self.states.items()},
+            "control_max": self.control_max,
+        }
 
 
 @dataclass(frozen=True)
@@ -290,9 +292,7 @@ def state_direction(states: tuple[str, ...], *names: str) -> DirectionFn:
     """
     unknown = [n for n in names if n not in states]
     if unknown:
-        raise BifidInputError(
-            f"{unknown[0]!r} is not a state (states: {', '.join(states)})."
-        )
+        raise BifidInputError(f"{unknown[0]!r} is not a state (states: {', '.join(states)}).")
     vector = jnp.array([1.0 if s in names else 0.0 for s in states])
 
     def direction(p: Array) -> Array:
