@@ -1,4 +1,4 @@
-"""Forced CBC benchmark: S-curves and FRCs with and without measurement noise (issue 3 §5).
+"""Forced CBC benchmark: S-curves and FRCs with and without measurement noise.
 
 Run from the repository root or the benchmarks directory::
 
@@ -413,7 +413,7 @@ def main() -> None:
         f"{0.01 * frc_refs[n]['a_max']:.4g})"
         for n in frc_refs
     )
-    md = f"""## cbc_forced: forced CBC (S-curves, FRCs) with measurement noise (issue 3 §5)
+    md = f"""## cbc_forced: forced CBC (S-curves, FRCs) with measurement noise
 
 ### S-curves
 
@@ -435,7 +435,7 @@ amplitude error `|dlnA/dlnγ| δ` there; Newton at fixed γ fails at the fold it
 points are not counted); *max dist. to curve* -- normalised distance
 `min √((Δγ/γ)² + (ΔA/A)²)` to the dense continuation curve, all points; *forcing floor* --
 3σ noise floor of the last forcing update relative to γ; *periods* -- forcing periods of
-the record each point was accepted on. Issue limits: amplitudes within 1 %, folds within 2 %.
+the record each point was accepted on. Limits: amplitudes within 1 %, folds within 2 %.
 
 {ref_lines}
 
@@ -456,7 +456,7 @@ points next to the folds (`|dlnA/dlnγ| > 2`; Newton at fixed (γ, Ω) fails at 
 itself, such points are not counted); *max dist. to curve* -- distance to the dense
 continuation FRC, Ω and A normalised by their ranges in the window; *folds* -- relative
 error in Ω and the largest error as a fraction of the width of the bistable range;
-*control floor* -- 3σ noise floor of `|u1|` relative to γ. Issue limits: amplitudes
+*control floor* -- 3σ noise floor of `|u1|` relative to γ. Limits: amplitudes
 within 1 %, folds within 2 %.
 
 {frc_ref_lines}

@@ -57,7 +57,7 @@ def test_noise_free_linear_data_recovered_to_round_off() -> None:
 
 
 def test_synthetic_free_decay_with_one_percent_noise_within_one_percent() -> None:
-    """Issue 4 §4: free decay of flutter at U = 0, 1 % noise -> (Ia, ca, ch) within 1 %."""
+    """Free decay of flutter at U = 0, 1 % noise -> (Ia, ca, ch) within 1 %."""
     sys_ = get_system("flutter")
     ts = np.arange(int(T_END * FS)) / FS
     # the nonlinear model, integrated by SciPy (independent of bifid's diffrax simulate);

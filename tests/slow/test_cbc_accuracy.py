@@ -1,4 +1,4 @@
-"""Long CBC accuracy runs (issue 3 §5): flutter PP-CBC, duffing and shaw_pierre S-curves,
+"""Long CBC accuracy runs: flutter PP-CBC, duffing and shaw_pierre S-curves,
 duffing FRC, controlled Floquet multipliers. Run with ``pytest --runslow tests/slow``.
 
 References are independent of CBC:
@@ -439,7 +439,7 @@ def test_frc_with_measurement_noise(system, fraction):
     """Check §5's limits on noisy FRCs: σ = 0.3 % / 1 % of the largest response amplitude.
 
     ``frc_cbc`` with the noisy gains of ``defaults_for`` on the virtual rig (100 Hz),
-    seed 1. Against a dense continuation FRC: both folds within 2 % in Ω (the issue's
+    seed 1. Against a dense continuation FRC: both folds within 2 % in Ω (the required
     limit) and within 5 % of the width of the bistable range (measured <= 2.1 %); every
     point within 1 % of the curve (distance normalised by the ranges of Ω and A, as in
     ``test_duffing_frc_bistable``); and, where the amplitude at the point's own (γ, Ω) is
