@@ -20,6 +20,7 @@ from collections.abc import Callable, Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
+from bifid.data import load_dataset
 from bifid.io import atomic_write_text, jsonable
 
 MANIFEST = "cache.json"
@@ -102,3 +103,21 @@ class StageCache:
     def info(self, stage: str) -> dict[str, Any]:
         """What was recorded with ``stage`` (empty if nothing)."""
         return dict(self.entries.get(stage, {}))
+
+    def dataset(self, key: str, measure: Callable[[], Mapping[str, Any]]) -> tuple[float, Any]:
+        """The ``campaign`` stage: ``measure()`` writes ``dataset.nc`` unless it is fresh;
+        the seconds spent and the loaded dataset."""
+        seconds = self.ensure("campaign", key, ["dataset.nc"], measure)
+        return seconds, load_dataset(self.directory / "dataset.nc")
+
+    def model(
+        self, key: str, estimator: type, hyper: Mapping[str, Any], data: Any, settings: dict
+    ) -> tuple[float, Any]:
+        """The ``model`` stage: ``estimator(**hyper).fit(data)`` saved in ``model/`` unless it
+        is fresh; the seconds spent and the loaded model."""
+
+        def fit() -> None:
+            estimator(**hyper).fit(data).save(self.directory / "model", settings=settings)
+
+        seconds = self.ensure("model", key, ["model/model.json"], fit)
+        return seconds, estimator.load(self.directory / "model")

@@ -130,22 +130,15 @@ def run_flutter_demo(
             n, fails = _campaign(out / "dataset.nc", cfg, noise, bar)
             return {"noise": noise, "n_points": n, "failures": fails}
 
-        timings["campaign"] = cache.ensure("campaign", keys["campaign"], ["dataset.nc"], campaign)
-        from bifid.data import load_dataset
-
-        data = load_dataset(out / "dataset.nc")
+        timings["campaign"], data = cache.dataset(keys["campaign"], campaign)
 
         # 3. identification
         bar.start("model", "training the hybrid model")
         from bifid.identify.hopf_hybrid import HopfHybridModel
 
-        def fit_model() -> None:
-            HopfHybridModel(**cfg.model).fit(data).save(
-                out / "model", settings={"demo": "flutter", **st["model"]}
-            )
-
-        timings["model"] = cache.ensure("model", keys["model"], ["model/model.json"], fit_model)
-        model = HopfHybridModel.load(out / "model")
+        timings["model"], model = cache.model(
+            keys["model"], HopfHybridModel, cfg.model, data, {"demo": "flutter", **st["model"]}
+        )
 
         # 3b. mechanistic identification of the same data (thesis ch. 4)
         mech = None

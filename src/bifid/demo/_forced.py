@@ -106,21 +106,14 @@ def run_forced_demo(
             n, fails = _campaign(out / "dataset.nc", cfg, noise, bar)
             return {"noise": noise, "n_points": n, "failures": fails}
 
-        timings["campaign"] = cache.ensure("campaign", keys["campaign"], ["dataset.nc"], campaign)
-        from bifid.data import load_dataset
-
-        data = load_dataset(out / "dataset.nc")
+        timings["campaign"], data = cache.dataset(keys["campaign"], campaign)
 
         bar.start("model", "fitting the kernel model")
         from bifid.identify.forced_kernel import ForcedKernelModel
 
-        def fit_model() -> None:
-            ForcedKernelModel(**cfg.model).fit(data).save(
-                out / "model", settings={"demo": "forced", **st["model"]}
-            )
-
-        timings["model"] = cache.ensure("model", keys["model"], ["model/model.json"], fit_model)
-        model = ForcedKernelModel.load(out / "model")
+        timings["model"], model = cache.model(
+            keys["model"], ForcedKernelModel, cfg.model, data, {"demo": "forced", **st["model"]}
+        )
 
         bar.start("compare", "predictions, figures, report")
         t0 = time.perf_counter()
