@@ -196,3 +196,48 @@ def test_coverage_small_in_process() -> None:
     assert not coverage_test(hits, 0.9)["rejected"], hits
     assert np.mean(hits) >= 0.8, hits
     assert np.mean(narrow) < 0.75, narrow
+
+
+# ------------------------------------------------------------------- kernel model
+# The averaged hardening Duffing oscillator a(ρ) = −cρ, b(ρ) = ω₀ + kρ², Γ = κF: on its FRC
+# ρ = Γ sin ψ / c and Ω = b(ρ) + Γ cos ψ / ρ are explicit in the phase ψ, so the folds
+# (extrema of Ω(ψ)), the peak and the amplitude at every phase are known exactly.
+KC, KK, KW0, KKAPPA = 0.0015, 0.0005, 1.0, 0.5
+K_TRAIN, K_PREDICT = (0.007, 0.01), 0.0085
+
+
+def duffing_frc(forcing, psi):
+    g = KKAPPA * forcing
+    rho = g * np.sin(psi) / KC
+    return KW0 + KK * rho**2 + g * np.cos(psi) / rho, rho
+
+
+def kernel_fit(seed: int, noise: float = 0.01):
+    from bifid.identify import ForcedKernelModel
+
+    rng = np.random.default_rng(seed)
+    psi = np.linspace(0.12, np.pi - 0.12, 16)
+    cols = {"omega": [], "forcing": [], "amplitude": [], "phase": []}
+    for f in K_TRAIN:
+        om, rho = duffing_frc(f, psi)
+        cols["omega"].append(om)
+        cols["forcing"].append(np.full(psi.size, f))
+        cols["amplitude"].append(rho * (1 + noise * rng.standard_normal(psi.size)))
+        cols["phase"].append(np.pi - psi + noise * rng.standard_normal(psi.size))
+    model = ForcedKernelModel(forcing_scale=KKAPPA, selection="loo", observation=False, seed=seed)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return model.fit(**{k: np.concatenate(v) for k, v in cols.items()})
+
+
+def test_kernel_refuses_a_level_it_does_not_reach(tmp_path, bifid_cli) -> None:
+    """Check a kernel model, whose posterior-sample intervals under-cover, refuses
+    ``level`` (library and CLI: one line, exit 2) instead of claiming it."""
+    m = kernel_fit(0)
+    with pytest.raises(BifidInputError, match="calibrated"):
+        m.predict_diagram(kind="frc", forcing=K_PREDICT, range=(0.95, 1.2), level=0.95)
+    m.save(tmp_path / "k")
+    args = ("predict", tmp_path / "k", "--forcing", K_PREDICT, "--omega-range", "0.95", "1.2")
+    r = bifid_cli(*args, "--level", "0.95", "--json")
+    assert r.code == 2 and r.stdout == "" and len(r.stderr.strip().splitlines()) == 1
+    assert bifid_cli(*args, "--json").code == 0
