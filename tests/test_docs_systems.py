@@ -46,7 +46,7 @@ def _run_page(page: Path, bifid_cli, tmp_path: Path, monkeypatch) -> dict[str, d
 
 
 def _one(outputs: dict[str, dict], prefix: str) -> dict:
-    (found,) = [v for k, v in outputs.items() if k.startswith(prefix)]
+    (found,) = [v for k, v in outputs.items() if k.removeprefix("bifid ").startswith(prefix)]
     return found
 
 

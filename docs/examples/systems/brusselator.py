@@ -27,5 +27,6 @@ register(
         default_param="b",
         x0=(1.0, 1.5),  # the equilibrium (a, b/a) at the nominal parameters
         envelope=Envelope(states={"x": (-1.0, 10.0), "y": (-1.0, 10.0)}, control_max=5.0),
+        cbc={"outputs": ("x", "y")},  # the rig records both concentrations
     ),
 )

@@ -81,9 +81,9 @@ class ForcedKernelModel(IdentifiedModel):
     model_type = "forced_kernel"
     kinds = ("backbone", "frc", "scurve")
     uncertainty_note = (
-        "the posterior-sample intervals of the Gaussian processes under-cover (77 % of "
-        "nominal 95 % in the calibration benchmark), so no level is claimed; the fitted "
-        "band (predict_diagram without level) shows the posterior spread"
+        "posterior-sample bands (predict_diagram without level) show the spread of the "
+        "Gaussian processes; as intervals they under-cover (77 % of nominal 95 % in the "
+        "calibration benchmark), so no level is claimed"
     )
     #: posterior-sample intervals exist (``_uncertainty.add_intervals``) but do not reach
     #: their stated level: ``level`` is refused until they do
