@@ -430,11 +430,9 @@ def _linear_response(system: System, p: Array, M: int) -> np.ndarray:
     """Linear steady-state response about x = 0 on the collocation grid (start guess)."""
     J = np.asarray(jax.jacfwd(system.field)(jnp.zeros(system.n_states), jnp.asarray(p)))
     b = np.asarray(system.forcing_direction(jnp.asarray(p)))
-    Om = float(p[system.index("Omega")])
-    F = float(p[system.index("F")])
+    Om, F = float(p[system.index("Omega")]), float(p[system.index("F")])
     X = np.linalg.solve(1j * Om * np.eye(system.n_states) - J, b * F)
-    tau = fourier_grid(M)
-    return np.real(np.outer(np.exp(1j * tau), X))
+    return np.real(np.outer(np.exp(1j * fourier_grid(M)), X))
 
 
 def frc(

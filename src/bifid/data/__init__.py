@@ -34,14 +34,13 @@ from bifid.data._flutter_rig import (
     read_flutter_cbc,
 )
 from bifid.data._import import FORMATS, detect_format, expand_paths, import_files
+from bifid.data._iterate import forced_records, lco_records
 from bifid.data._matlab import load_mat
 from bifid.data._netcdf import (
     append_record,
     combine_datasets,
     forced_dataset,
-    forced_records,
     lco_dataset,
-    lco_records,
     load_dataset,
     save_dataset,
 )

@@ -27,7 +27,8 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
-from bifid.data._netcdf import forced_dataset, forced_records, lco_dataset, lco_records
+from bifid.data._iterate import forced_records, lco_records
+from bifid.data._netcdf import forced_dataset, lco_dataset
 from bifid.data._records import ForcedRecord, LCORecord
 from bifid.data._validate import parse_json_attr, validate_dataset
 from bifid.errors import BifidInputError
