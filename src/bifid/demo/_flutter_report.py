@@ -303,6 +303,15 @@ def write_report(
             f"{len(errors['checks'])} checks pass."
         ),
     )
+    _prediction_section(rep, figs, errors)
+    _experiment_section(rep, figs, data, truth, summary)
+    if mech is not None:
+        _mechanistic_section(rep, mech, cfg, truth)
+    return finish_report(rep, out, model, summary, {"demo": "flutter", **asdict(cfg)}, run_time)
+
+
+def _prediction_section(rep, figs, errors) -> None:
+    """Checks against the truth, the diagram, and the errors at every test point."""
     sec = rep.section("Prediction against the truth")
     labels = {
         "hopf_U": "Hopf speed error",
@@ -362,6 +371,10 @@ def write_report(
             ],
         )
     )
+
+
+def _experiment_section(rep, figs, data, truth, summary) -> None:
+    """Portraits, series, and the measured LCOs with the failed attempts."""
     sec = rep.section("Phase portraits and time series")
     sec.append(rep.figure(figs["portraits"], "Measured orbits and the model's cycles."))
     sec.append(rep.figure(figs["series"], "One period at an untrained speed, both branches."))
@@ -392,7 +405,11 @@ def write_report(
                 ["U [m/s]", "reason"], [[f.get("param", "?"), f.get("reason", "")] for f in fails]
             )
         )
-    if mech is not None and mech["summary"].get("failed"):
+
+
+def _mechanistic_section(rep, mech, cfg, truth) -> None:
+    """The whole-diagram update of the same data, or why it failed."""
+    if mech["summary"].get("failed"):
         sec = rep.section("Mechanistic identification of the same data (thesis ch. 4)")
         sec.append(
             rep.text(
@@ -400,7 +417,7 @@ def write_report(
                 + mech["summary"]["failed"]
             )
         )
-    elif mech is not None:
+    else:
         ms = mech["summary"]
         sec = rep.section("Mechanistic identification of the same data (thesis ch. 4)")
         sec.append(
@@ -445,7 +462,6 @@ def write_report(
                 ],
             )
         )
-    return finish_report(rep, out, model, summary, {"demo": "flutter", **asdict(cfg)}, run_time)
 
 
 def _campaign_rows(data, truth) -> list[list[Any]]:
