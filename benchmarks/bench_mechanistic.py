@@ -290,7 +290,12 @@ def _curve_at(curve_U, curve_A, U, stable: bool) -> float:
 
 def bench_real() -> tuple[str, dict]:
     from bifid.continuation import Branch, Diagram
-    from bifid.data import flutter_cbc_dataset, load_free_decay, load_thesis_curves
+    from bifid.data import (
+        RIG_PARAMETER_NAMES,
+        flutter_cbc_dataset,
+        load_free_decay,
+        load_thesis_curves,
+    )
     from bifid.identify import LCOData, MechanisticModel
     from bifid.identify.mechanistic import model_branch
     from bifid.report import plot_diagram, save_figure
@@ -300,20 +305,7 @@ def bench_real() -> tuple[str, dict]:
     fd = load_free_decay(DATA / "free_decay" / "model1_free_decay.mat")
     ds = flutter_cbc_dataset(sorted((DATA / "cbc_model1").glob("*.mat")))
     g = fd.guesses
-    rig = {
-        "I__alpha": "Ia",
-        "c__alpha": "ca",
-        "c__h": "ch",
-        "k__alpha": "ka",
-        "k__h": "kh",
-        "x__alpha": "xa",
-        "m": "mw",
-        "m__T": "mT",
-        "b": "b",
-        "a": "a",
-        "rho": "rho",
-    }
-    params = {rig[k]: float(v) for k, v in g.items() if k in rig}
+    params = {RIG_PARAMETER_NAMES[k]: float(v) for k, v in g.items() if k in RIG_PARAMETER_NAMES}
     data = LCOData.from_dataset(ds)
     t0 = time.perf_counter()
     m = MechanisticModel(

@@ -19,7 +19,7 @@ from pathlib import Path
 
 import numpy as np
 
-from bifid.data import flutter_cbc_dataset, load_free_decay
+from bifid.data import RIG_PARAMETER_NAMES, flutter_cbc_dataset, load_free_decay
 from bifid.identify import LCOData, MechanisticModel
 from bifid.report import plot_diagram, save_figure
 
@@ -34,20 +34,8 @@ data = LCOData.from_dataset(ds)  # amplitudes max|x - mean| [m, rad], labels, Wi
 # The rig file stores the measured parameters (b, a, rho, m, m_T, x_alpha, k_h) and the
 # authors' starting guesses; omega_alpha = sqrt(ka / Ia) comes from a shaker test, so ka is
 # tied to Ia during the linear stage (Table 4.1: ka = omega_alpha^2 Ia).
-rig_names = {
-    "I__alpha": "Ia",
-    "c__alpha": "ca",
-    "c__h": "ch",
-    "k__alpha": "ka",
-    "k__h": "kh",
-    "x__alpha": "xa",
-    "m": "mw",
-    "m__T": "mT",
-    "b": "b",
-    "a": "a",
-    "rho": "rho",
-}
-params = {rig_names[k]: float(v) for k, v in fd.guesses.items() if k in rig_names}
+names = RIG_PARAMETER_NAMES
+params = {names[k]: float(v) for k, v in fd.guesses.items() if k in names}
 
 # 2. The three stages: linear PEM (Ia, ca, ch), normal form (ka2, ka3 near the Hopf point),
 #    whole-diagram update by collocation with implicit-differentiation gradients

@@ -61,25 +61,13 @@ def test_whole_diagram_recovers_from_30_percent(truth, f2, f3) -> None:
 
 
 def test_real_three_stage_pipeline(shared_data) -> None:
-    from bifid.data import flutter_cbc_dataset, load_free_decay
+    from bifid.data import RIG_PARAMETER_NAMES, flutter_cbc_dataset, load_free_decay
 
     d = shared_data / "flutter_rig"
     fd = load_free_decay(d / "free_decay" / "model1_free_decay.mat")
     ds = flutter_cbc_dataset(sorted((d / "cbc_model1").glob("*.mat")))
-    rig = {
-        "I__alpha": "Ia",
-        "c__alpha": "ca",
-        "c__h": "ch",
-        "k__alpha": "ka",
-        "k__h": "kh",
-        "x__alpha": "xa",
-        "m": "mw",
-        "m__T": "mT",
-        "b": "b",
-        "a": "a",
-        "rho": "rho",
-    }
-    params = {rig[k]: float(v) for k, v in fd.guesses.items() if k in rig}
+    names = RIG_PARAMETER_NAMES
+    params = {names[k]: float(v) for k, v in fd.guesses.items() if k in names}
     m = MechanisticModel(
         "flutter",
         ("ka2", "ka3"),

@@ -22,6 +22,7 @@ loaders of the files that are not limit-cycle records: :func:`load_free_decay`,
 from bifid.data._csv import ThesisCurve, load_thesis_curves, read_csv_dataset, write_csv
 from bifid.data._em_rig import em_dataset, read_em_curve
 from bifid.data._flutter_rig import (
+    RIG_PARAMETER_NAMES,
     FreeDecay,
     OpenLoopRun,
     ULCOAmplitudes,
@@ -50,6 +51,7 @@ from bifid.data._validate import KINDS, validate_dataset
 __all__ = [
     "FORMATS",
     "KINDS",
+    "RIG_PARAMETER_NAMES",
     "ForcedRecord",
     "FreeDecay",
     "LCORecord",

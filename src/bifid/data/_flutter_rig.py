@@ -33,6 +33,7 @@ from bifid.errors import BifidInputError
 from bifid.signal import estimate_frequency, fill_gaps
 
 __all__ = [
+    "RIG_PARAMETER_NAMES",
     "FreeDecay",
     "OpenLoopRun",
     "ULCOAmplitudes",
@@ -49,6 +50,20 @@ HEAVE_M_PER_V = 0.18  # flutter rig heave sensor, CBC and free-decay files
 OPEN_LOOP_MM_PER_V = 470.0  # flutter rig heave sensor, 2018 open-loop files
 PITCH_WRAP_VALUE = 6.2832  # pitch sensor wrap/clipping value in cbc_model2 [rad]
 PITCH_WRAP_TOL = 1e-4
+#: scalars stored in the rig's free-decay files -> the flutter model's parameter names
+RIG_PARAMETER_NAMES = {
+    "I__alpha": "Ia",
+    "c__alpha": "ca",
+    "c__h": "ch",
+    "k__alpha": "ka",
+    "k__h": "kh",
+    "x__alpha": "xa",
+    "m": "mw",
+    "m__T": "mT",
+    "b": "b",
+    "a": "a",
+    "rho": "rho",
+}
 
 
 # ---------------------------------------------------------------------------------------------
