@@ -31,14 +31,20 @@ def console_commands(page: Path) -> list[str]:
     ]
 
 
-def _run_page(page: Path, bifid_cli, tmp_path: Path, monkeypatch) -> dict[str, dict]:
-    """Run every command of ``page`` in a copy of the examples; the JSON outputs by command."""
+def _run_page(
+    page: Path, bifid_cli, tmp_path: Path, monkeypatch, suffix: str = ".toml"
+) -> dict[str, dict]:
+    """Run every command of ``page`` in a copy of the examples (with the system files of
+    ``suffix`` in place of the ``.toml`` ones); the JSON outputs by command (as written)."""
     for f in EXAMPLES.iterdir():
         shutil.copy(f, tmp_path / f.name)
     monkeypatch.chdir(tmp_path)
     outputs = {}
     for command in console_commands(page):
-        r = bifid_cli(*shlex.split(command)[1:])
+        args = [
+            a.replace(".toml", suffix) if a.endswith(".toml") else a for a in shlex.split(command)
+        ]
+        r = bifid_cli(*args[1:])
         assert r.code == 0, f"{command}: exit {r.code}: {r.stderr[-2000:]}"
         if "--json" in command:
             outputs[command] = r.json
@@ -136,10 +142,14 @@ def _check_ppcbc_against_continuation(measured: dict, truth: dict) -> None:
 
 
 @pytest.mark.slow
-def test_own_system_tutorial_runs_from_equations_to_prediction(bifid_cli, tmp_path, monkeypatch):
-    """Run every command of the tutorial; the predicted Hopf point within 1 % of the
-    continuation's (b = 2), the predicted FRC folds within 1 % of the continuation's."""
-    out = _run_page(TUTORIAL_PAGE, bifid_cli, tmp_path, monkeypatch)
+@pytest.mark.parametrize("suffix", [".toml", ".py"])
+def test_own_system_tutorial_runs_from_equations_to_prediction(
+    bifid_cli, tmp_path, monkeypatch, suffix
+):
+    """Run every command of the tutorial, with both systems written as ``.toml`` and as
+    ``.py`` files; the predicted Hopf point within 1 % of the continuation's (b = 2), the
+    predicted FRC folds within 1 % of the continuation's."""
+    out = _run_page(TUTORIAL_PAGE, bifid_cli, tmp_path, monkeypatch, suffix)
     (hopf,) = _one(out, "predict model ")["hopf"]
     assert hopf["param"] == pytest.approx(2.0, rel=0.01)
     folds = sorted(f["omega"] for f in _one(out, "frc softening.toml")["folds"])

@@ -110,8 +110,10 @@ def _floats(text: str | None, what: str) -> list[float] | None:
 @cli.app.command("cbc")
 def cbc_cmd(
     system_name: Annotated[str, typer.Argument(metavar="SYSTEM", help="System name or file.")],
-    protocol: Annotated[str, Opt("--protocol", help="ppcbc | scurve | frc")],
     out: Annotated[Path, Opt("--out", help="Dataset to write (netCDF), point by point.")],
+    protocol: Annotated[
+        str | None, Opt("--protocol", help="ppcbc (default if self-excited) | scurve | frc")
+    ] = None,
     resume: Annotated[bool, Opt("--resume", help="Continue the campaign in --out.")] = False,
     force: cli.ForceOpt = False,
     sets: Annotated[list[str] | None, Opt("--set", help="NAME=VALUE (repeatable).")] = None,
@@ -191,7 +193,7 @@ def cbc_cmd(
         system = get_system(system_name)
         overrides = cli.parse_sets(sets)
         system.param_vector(overrides)
-        _check_protocol(system, system_name, protocol)
+        protocol = _check_protocol(system, system_name, protocol)
         cli.check_outputs(out=out, plot=plot, force=force, resume=resume)
         options = _protocol_options(kp, kd, n_harmonics, settle, measure, tol, stability)
         rig_options: dict[str, Any] = {"derivative": derivative}
@@ -226,13 +228,21 @@ def cbc_cmd(
         _finish(system, protocol, result, payload, key, out, resume, json_out)
 
 
-def _check_protocol(system, system_name: str, protocol: str) -> None:
+def _check_protocol(system, system_name: str, protocol: str | None) -> str:
+    """The protocol to run: as given, or PP-CBC for a self-excited system."""
+    if protocol is None:
+        if system.kind != "autonomous":
+            raise BifidInputError(
+                f"{system_name!r} is forced: give --protocol scurve or --protocol frc."
+            )
+        return "ppcbc"
     if protocol not in ("ppcbc", "scurve", "frc"):
         raise BifidInputError(f"--protocol must be ppcbc, scurve or frc, got {protocol!r}.")
     if protocol == "ppcbc" and system.kind != "autonomous":
         raise BifidInputError(f"{system_name!r} is forced: use --protocol scurve or frc.")
     if protocol != "ppcbc" and system.kind != "forced":
         raise BifidInputError(f"{system_name!r} is autonomous: use --protocol ppcbc.")
+    return protocol
 
 
 def _protocol_options(kp, kd, n_harmonics, settle, measure, tol, stability) -> dict[str, Any]:
