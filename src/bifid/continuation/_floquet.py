@@ -31,8 +31,10 @@ multiplier ``e^{-1325}`` is below the smallest double), so it is never formed:
 Written by hand because SciPy has no periodic Schur decomposition and the SLICOT
 routine (Fortran, through ``slycot``) is a heavy binary dependency with a documented
 failure for long products; the matrices here are small (``n`` states) and the
-iteration above is a few dozen lines. All orbits of a branch are integrated in one
-``vmap``-ed, compiled call.
+iteration above is a few dozen lines. The orbits of a branch are integrated in
+``vmap``-ed, compiled calls over chunks of a fixed number of orbits, so branches of any
+length reuse one compiled program (tracing and compiling the integrator is what a new
+batch shape costs: tens of seconds, against milliseconds for a call).
 
 Stability tolerance: multipliers are accurate to about ``1e-9`` relative; an orbit is
 labelled stable when its largest non-trivial modulus is below ``1 - STABILITY_TOL``,
@@ -173,11 +175,22 @@ def _spread_fn(rhs: Callable) -> Callable:
     return jax.jit(jax.vmap(one))
 
 
-def _pad(n_orb: int) -> np.ndarray:
-    """Indices padding a batch to a power of two (>= 8) by repeating the last orbit, so
-    branches of different lengths reuse a handful of compiled shapes."""
-    size = max(8, 1 << max(n_orb - 1, 0).bit_length())
-    return np.minimum(np.arange(size), max(n_orb - 1, 0))
+_CHUNK = 8  # orbits per compiled call
+
+
+def _in_chunks(fn: Callable, *arrays: np.ndarray) -> tuple[np.ndarray, ...]:
+    """``fn`` over a batch of orbits in chunks of :data:`_CHUNK` (the last one padded by
+    repeating its last orbit): one compiled shape for every batch size; the outputs
+    concatenated and cut to the batch."""
+    n = len(arrays[0])
+    parts = []
+    for start in range(0, max(n, 1), _CHUNK):
+        idx = np.minimum(np.arange(start, start + _CHUNK), max(n - 1, 0))
+        out = fn(*(jnp.asarray(a[idx]) for a in arrays))
+        parts.append(out if isinstance(out, tuple) else (out,))
+    return tuple(
+        np.concatenate([np.asarray(o[k]) for o in parts])[:n] for k in range(len(parts[0]))
+    )
 
 
 def _samples(orbits: Sequence[np.ndarray], n_samples: int) -> np.ndarray:
@@ -205,11 +218,8 @@ def monodromy_factors(
     periods = np.asarray(periods, dtype=float)
     ps = np.asarray(ps, dtype=float)
     n_orb = len(orbits)
-    idx = _pad(n_orb)
     coarse = _samples(orbits, _SPREAD_SAMPLES)
-    spread = np.asarray(
-        _spread_fn(rhs)(jnp.asarray(coarse[idx]), jnp.asarray(periods[idx]), jnp.asarray(ps[idx]))
-    )[:n_orb]
+    (spread,) = _in_chunks(_spread_fn(rhs), coarse, periods, ps)
     need = float(np.nanmax(np.abs(periods) * spread)) / _FACTOR_GROWTH if n_orb else 1.0
     if not math.isfinite(need):
         need = _MAX_FACTORS
@@ -217,11 +227,9 @@ def monodromy_factors(
     # each factor integrates the orbit with its variational equation from the orbit's
     # trigonometric interpolant at t_j (cheap for any mesh; the sub-intervals are short)
     starts = _samples(orbits, n_factors)
-    fn = _factors_fn(rhs, n_factors)
-    Phi, ok, f0 = fn(jnp.asarray(starts[idx]), jnp.asarray(periods[idx]), jnp.asarray(ps[idx]))
-    Phi = np.asarray(Phi)[:n_orb]
-    ok = np.asarray(ok)[:n_orb] & np.all(np.isfinite(Phi), axis=(1, 2, 3))
-    return Phi, ok, np.asarray(f0)[:n_orb]
+    Phi, ok, f0 = _in_chunks(_factors_fn(rhs, n_factors), starts, periods, ps)
+    ok = ok & np.all(np.isfinite(Phi), axis=(1, 2, 3))
+    return Phi, ok, f0
 
 
 # ------------------------------------------------------------ periodic eigenvalues
