@@ -366,6 +366,33 @@ def equilibria(
     ys = result.ys
     eigs = _eigenvalues(system.field, ys, p, idx)
     params = ys[:, -1]
+    findings = _special_points(system, param, problem, args, idx, options, result, eigs)
+    residual = np.max(np.abs(np.asarray(_batched_residual(problem)(jnp.asarray(ys), args))), axis=1)
+    return Branch(
+        kind="equilibrium",
+        system=system.name,
+        param=param,
+        params=params,
+        solutions=ys[:, :-1],
+        stable=np.all(eigs.real < 0, axis=1),
+        special_points=findings.sorted_points(),
+        data={"eigenvalues": eigs, "state": ys[:, :-1]},
+        p=np.asarray(p),
+        status=result.status,
+        message=result.message,
+        options=options,
+        signals=tuple(system.states),
+        meta={"states": list(system.states)},
+        verification={"residual": residual},
+        candidates=findings.candidates,
+    )
+
+
+def _special_points(system, param, problem, args, idx, options, result, eigs) -> Findings:
+    """The verified Hopf points and folds of an equilibrium branch, and its candidates
+    (branch points are flagged, not located)."""
+    ys = result.ys
+    params = ys[:, -1]
     findings = Findings()
     if options.detect_bifurcations:
         _find_hopf(
@@ -397,22 +424,4 @@ def equilibria(
             (params[i], params[i + 1]),
             "det [G_y; t^T] changed sign: a branch point (branch points are flagged, not located)",
         )
-    residual = np.max(np.abs(np.asarray(_batched_residual(problem)(jnp.asarray(ys), args))), axis=1)
-    return Branch(
-        kind="equilibrium",
-        system=system.name,
-        param=param,
-        params=params,
-        solutions=ys[:, :-1],
-        stable=np.all(eigs.real < 0, axis=1),
-        special_points=findings.sorted_points(),
-        data={"eigenvalues": eigs, "state": ys[:, :-1]},
-        p=np.asarray(p),
-        status=result.status,
-        message=result.message,
-        options=options,
-        signals=tuple(system.states),
-        meta={"states": list(system.states)},
-        verification={"residual": residual},
-        candidates=findings.candidates,
-    )
+    return findings

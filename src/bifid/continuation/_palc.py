@@ -240,6 +240,40 @@ class Continuation:
             corrector=self.corrector.state(),
         )
 
+    def _land_on_bound(
+        self, state: ContinuationState, y_new: np.ndarray, direction: np.ndarray, w, hit: float
+    ) -> Step:
+        """The last point of a step that crossed the parameter bound ``hit``: corrected
+        onto it from the chord between ``state.y`` and ``y_new`` (status ``"range"``)."""
+        y, args, n = state.y, state.args, state.y.shape[0]
+        pi = self.param_index % n
+        frac = (hit - float(y[pi])) / (float(y_new[pi]) - float(y[pi]))
+        e_p = np.zeros(n)
+        e_p[pi] = 1.0
+        rb = self.corrector.correct(y + frac * (y_new - y), e_p, hit, args)
+        if not rb.converged:
+            return Step(
+                replace(
+                    state,
+                    status="failed",
+                    message=f"could not converge on the parameter bound {hit:g}",
+                )
+            )
+        self.corrector.accept(rb)
+        t_b, sign_b = self.corrector.tangent(rb.y, direction, w, args)
+        new = replace(
+            state,
+            y=rb.y,
+            t=t_b,
+            sign=sign_b,
+            n_points=state.n_points + 1,
+            y_prev=y,
+            status="range",
+            message=f"reached the parameter bound {hit:g}",
+            corrector=self.corrector.state(),
+        )
+        return Step(new, rb, t_b)
+
     def step(self, state: ContinuationState) -> Step:
         """Try one step from ``state``; see :class:`Step`."""
         o = self.options
@@ -301,32 +335,7 @@ class Continuation:
         p_new = float(y_new[pi])
         hit = o.p_max if p_new > o.p_max else o.p_min if p_new < o.p_min else None
         if hit is not None:
-            frac = (hit - float(y[pi])) / (p_new - float(y[pi]))
-            e_p = np.zeros(n)
-            e_p[pi] = 1.0
-            rb = self.corrector.correct(y + frac * (y_new - y), e_p, hit, args)
-            if not rb.converged:
-                return Step(
-                    replace(
-                        state,
-                        status="failed",
-                        message=f"could not converge on the parameter bound {hit:g}",
-                    )
-                )
-            self.corrector.accept(rb)
-            t_b, sign_b = self.corrector.tangent(rb.y, direction, w, args)
-            new = replace(
-                state,
-                y=rb.y,
-                t=t_b,
-                sign=sign_b,
-                n_points=state.n_points + 1,
-                y_prev=y,
-                status="range",
-                message=f"reached the parameter bound {hit:g}",
-                corrector=self.corrector.state(),
-            )
-            return Step(new, rb, t_b)
+            return self._land_on_bound(state, y_new, direction, w, hit)
 
         events: list[tuple[str, np.ndarray | None, float]] = []
         if o.detect_folds and float(t[pi]) * float(t_new[pi]) < 0:
