@@ -188,6 +188,14 @@ def fit_hopf_cmd(
         str | None,
         typer.Option("--cv", help="'loo': also run leave-one-orbit-out validation and report it."),
     ] = None,
+    level: Annotated[
+        float | None,
+        typer.Option(
+            "--level",
+            help="Also retrain without each orbit in turn (jackknife) so the model has "
+            "intervals; report the Hopf point's and cycle fold's at this level.",
+        ),
+    ] = None,
     plot: PlotOpt = None,
     seed: SeedOpt = 0,
     quiet: Annotated[bool, typer.Option("--quiet", help="No progress on stderr.")] = False,
@@ -197,9 +205,11 @@ def fit_hopf_cmd(
     """Fit a hybrid normal-form + neural-network Hopf model (thesis ch. 5) to limit cycles."""
     with user_errors():
         from bifid.identify import HopfHybridModel
+        from bifid.identify._intervals import check_level
 
         if cv is not None and cv.strip().lower() != "loo":
             raise BifidInputError(f"--cv must be 'loo', got {cv!r}.")
+        lv = None if level is None else check_level(level)
         plane_names = None
         if plane is not None:
             plane_names = _names(plane, "--plane")
@@ -223,6 +233,13 @@ def fit_hopf_cmd(
             progress=not quiet,
         )
         source = [str(p) for p in data]
+
+        def after(m: Any) -> dict[str, Any]:
+            extra = {"cv": m.cross_validate(source)} if cv is not None else {}
+            if lv is not None:
+                extra["intervals"] = _hopf_intervals(m, lv)
+            return extra
+
         run_fit(
             model,
             data,
@@ -231,8 +248,16 @@ def fit_hopf_cmd(
             json_out=json_out,
             force=force,
             command="fit hopf",
-            after=(lambda m: {"cv": m.cross_validate(source)}) if cv is not None else None,
+            fit_kwargs={"uncertainty": lv is not None},
+            after=after if (cv is not None or lv is not None) else None,
         )
+
+
+def _hopf_intervals(model: Any, level: float) -> dict[str, Any]:
+    """``level``, ``hopf`` and ``cycle_folds`` (with their ``*_interval`` entries) of the
+    fitted model's default diagram at ``level``, as ``bifid predict … --level`` prints them."""
+    d = model.predict_diagram(level=level).to_json()
+    return {"level": d["level"], "hopf": d["hopf"], "cycle_folds": d["cycle_folds"]}
 
 
 @fit_app.command("forced")

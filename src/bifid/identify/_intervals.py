@@ -30,6 +30,7 @@ has :math:`\mathrm{Var}\,q \approx g^\mathsf{T}\,\mathrm{Cov}(\hat\theta)\,g` wi
 from __future__ import annotations
 
 import math
+import warnings
 from dataclasses import dataclass
 from typing import Any
 
@@ -46,6 +47,7 @@ __all__ = [
     "critical_value",
     "gauss_newton_covariance",
     "implicit_sensitivity",
+    "warn_extrapolation",
 ]
 
 
@@ -115,6 +117,21 @@ class Covariance:
         half = critical_value(level, self.dof) * self.std(gradient)
         v = np.asarray(value, dtype=float)
         return v - half, v + half
+
+
+def warn_extrapolation(
+    param: str, predicted: tuple[float, float], trained: tuple[float, float], stacklevel: int = 3
+) -> None:
+    """Warn (``UserWarning``) when the ``predicted`` parameter range leaves the ``trained``
+    one: intervals there rest on the model's form, not on data."""
+    (a, b), (lo, hi) = predicted, trained
+    if a < lo or b > hi:
+        warnings.warn(
+            f"the prediction over {param} = {a:g}..{b:g} extrapolates beyond the trained "
+            f"range {lo:g}..{hi:g}: its intervals rest on the model's form there, not on data.",
+            UserWarning,
+            stacklevel=stacklevel + 1,
+        )
 
 
 def gauss_newton_covariance(

@@ -12,7 +12,7 @@ from bifid.identify._records import LCOData
 from bifid.identify.hopf_hybrid._prepare import measured_amplitude, prepare
 from bifid.identify.hopf_hybrid._timing import one_blas_thread
 
-__all__ = ["leave_one_out"]
+__all__ = ["leave_one_out", "refit_without"]
 
 
 def _errors(folds: list[dict[str, Any]], names: tuple[str, ...]) -> dict[str, Any]:
@@ -28,6 +28,36 @@ def _errors(folds: list[dict[str, Any]], names: tuple[str, ...]) -> dict[str, An
         "amplitude_error_max": over(np.max),
         "frequency_error_max": float(np.max([f["frequency_error"] for f in ok])) if ok else None,
     }
+
+
+def refit_without(model: Any, data: LCOData, i: int) -> Any:
+    """A copy of ``model`` trained on ``data`` without record ``i``: one ensemble member,
+    the regularisation, stopping, criticality, quintic term and plane selected by
+    ``model`` fixed. Record ``i`` keeps its slot with weight 0 (the compiled training loops
+    are reused; only the normalisation constants of the parameter and signals see it).
+
+    Raises
+    ------
+    ConvergenceError
+        If the refit produces no finite parameters.
+    """
+    st = model.state_
+    hyper = model.get_params()
+    hyper.update(
+        regularization=float(model.regularization_),
+        stopping=int(model.n_iterations_),
+        n_ensemble=1,
+        omega_regularization=float(model.speed_regularization_),
+        criticality=model.criticality_,
+        quintic=bool(st.q5),
+        plane=tuple(st.signal_names[k] for k in st.plane),
+        progress=False,
+    )
+    fold_model = type(model)(**hyper)
+    with one_blas_thread(), warnings.catch_warnings():
+        warnings.simplefilter("ignore", ConvergenceWarning)
+        fold_model._fit(data, np.arange(len(data)) != i)
+    return fold_model
 
 
 def leave_one_out(model: Any, data: LCOData) -> dict[str, Any]:
@@ -47,17 +77,6 @@ def leave_one_out(model: Any, data: LCOData) -> dict[str, Any]:
         does not exist in the fold model); ``summary``: mean and largest errors.
     """
     st = model.state_
-    hyper = model.get_params()
-    hyper.update(
-        regularization=float(model.regularization_),
-        stopping=int(model.n_iterations_),
-        n_ensemble=1,
-        omega_regularization=float(model.speed_regularization_),
-        criticality=model.criticality_,
-        quintic=bool(st.q5),
-        plane=tuple(st.signal_names[i] for i in st.plane),
-        progress=False,
-    )
     prep_all = prepare(
         data,
         st.plane,
@@ -69,10 +88,7 @@ def leave_one_out(model: Any, data: LCOData) -> dict[str, Any]:
     )
     folds = []
     for i in range(len(data)):
-        fold_model = type(model)(**hyper)
-        with one_blas_thread(), warnings.catch_warnings():
-            warnings.simplefilter("ignore", ConvergenceWarning)
-            fold_model._fit(data, np.arange(len(data)) != i)
+        fold_model = refit_without(model, data, i)
         omega_i = float(prep_all.omega[i])
         meas = measured_amplitude(data.signals[i], omega_i, data.sample_rate[i])
         stable = bool(data.stable[i] != 0)

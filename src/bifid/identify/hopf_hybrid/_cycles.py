@@ -17,7 +17,13 @@ import numpy as np
 from bifid.errors import BifidInputError, ConvergenceError
 from bifid.identify.hopf_hybrid._normal_form import growth_derivative, raw_a2
 from bifid.identify.hopf_hybrid._speed import invert_phase, speed_on_grid_fn
-from bifid.identify.hopf_hybrid._state import HybridState, member, plane_angles, u12_batch
+from bifid.identify.hopf_hybrid._state import (
+    HybridState,
+    member,
+    plane_angles,
+    u12_batch,
+    u12_cycles,
+)
 
 __all__ = [
     "amplitudes",
@@ -25,6 +31,7 @@ __all__ = [
     "cycle",
     "cycle_fold",
     "cycle_points",
+    "cycle_radii",
     "hopf_point",
     "period",
     "radius2",
@@ -83,13 +90,38 @@ def cycle_points(
 
 def amplitudes(state: HybridState, s: int, mu_t: np.ndarray, rho: np.ndarray) -> np.ndarray:
     """``max_t |z_k|`` of every signal on the cycles ``(mu_t, rho)``, shape (n, m)."""
+    mu_t, rho = np.atleast_1d(np.asarray(mu_t, float)), np.atleast_1d(np.asarray(rho, float))
     phi = np.linspace(0, 2 * np.pi, N_CYCLE, endpoint=False)
-    return np.array(
-        [
-            np.max(np.abs(cycle_points(state, s, m, r, phi)), axis=0)
-            for m, r in zip(mu_t, rho, strict=True)
-        ]
-    ).reshape(-1, len(state.signal_names))
+    out = np.zeros((len(rho), len(state.signal_names)))
+    if not len(rho):
+        return out
+    unit = np.stack([np.cos(phi), np.sin(phi)], axis=1)
+    # padded to a power of two: one compiled program serves many branch lengths
+    n = len(rho)
+    pad = max(8, 1 << (n - 1).bit_length()) - n
+    r_pad, m_pad = np.pad(rho, (0, pad), mode="edge"), np.pad(mu_t, (0, pad), mode="edge")
+    mp = member(state.map_params, s)
+    plane = u12_cycles(mp, state.map_config, r_pad[:, None, None] * unit, m_pad)[:n]
+    scale = state.z_scale[list(state.plane)]
+    out[:, list(state.plane)] = np.max(np.abs(plane @ np.linalg.inv(state.white)), axis=1) * scale
+    for j, (m, r) in enumerate(zip(mu_t, rho, strict=True)) if state.others else ():
+        x = np.column_stack([r * unit, np.full(len(phi), m)])
+        z = state.observation[s].predict(x) * state.z_scale[list(state.others)]
+        out[j, list(state.others)] = np.max(np.abs(z), axis=0)
+    return out
+
+
+def cycle_radii(state: HybridState, s: int, mu_t: np.ndarray, stable: np.ndarray) -> np.ndarray:
+    r"""Radii :math:`\rho` of the cycles of the given stability at ``mu_t`` (NaN: none)."""
+    mu_t, stable = np.asarray(mu_t, dtype=float), np.asarray(stable, dtype=bool)
+    mu0, a2, q5 = state.mu0_t(s), state.a2(s), state.q5
+    rho2 = np.full(mu_t.shape, np.nan)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        for root in (1.0, -1.0) if q5 else (1.0,):
+            r2 = 0.5 * (a2 + root * np.sqrt(a2**2 + 4 * (mu_t - mu0))) if q5 else -(mu_t - mu0) / a2
+            ok = (r2 > 0) & ((growth_derivative(r2, mu_t, mu0, a2, q5) < 0) == stable)
+            rho2 = np.where(np.isnan(rho2) & ok, r2, rho2)
+    return np.sqrt(rho2)
 
 
 def hopf_point(state: HybridState, s: int) -> dict[str, Any]:

@@ -18,16 +18,18 @@ import numpy as np
 from bifid.continuation import Diagram
 from bifid.errors import BifidInputError
 from bifid.identify._base import DiagramQuery, IdentifiedModel, Orbit
+from bifid.identify._intervals import warn_extrapolation
 from bifid.identify._persistence import register_model_type
 from bifid.identify._records import LCOData, as_lco_data
 from bifid.identify.hopf_hybrid import _cycles as cy
+from bifid.identify.hopf_hybrid import _uncertainty as uq
 from bifid.identify.hopf_hybrid._cv import leave_one_out
 from bifid.identify.hopf_hybrid._diagram import ensemble_spread, hybrid_diagram, spread
 from bifid.identify.hopf_hybrid._hyper import check_hyperparameters
 from bifid.identify.hopf_hybrid._normal_form import raw_a2
 from bifid.identify.hopf_hybrid._prepare import measured_amplitude, prepare
 from bifid.identify.hopf_hybrid._speed_stage import PhaseMatcher, speed_config, train_speed
-from bifid.identify.hopf_hybrid._state import HybridState
+from bifid.identify.hopf_hybrid._state import HybridState, states_from_json, states_to_json
 from bifid.identify.hopf_hybrid._timing import StageTimer, one_blas_thread, progress_bar
 from bifid.identify.hopf_hybrid._train import (
     configure,
@@ -106,8 +108,8 @@ class HopfHybridModel(IdentifiedModel):
     model_type = "hopf_hybrid"
     kinds = ("bifurcation",)
     uncertainty_note = (
-        "the spread of the ensemble over training seeds is available as "
-        "HopfHybridModel.ensemble_spread(); it is not a confidence interval"
+        "it was fitted without uncertainty=True (bifid fit hopf --level); ensemble_spread() "
+        "gives the spread over training seeds, not a confidence interval"
     )
     _fitted_attribute = "state_"
 
@@ -175,7 +177,18 @@ class HopfHybridModel(IdentifiedModel):
         self.progress = progress
 
     # ----------------------------------------------------------------------------- fit
-    def fit(self, dataset: Any, *, signal_names: Sequence[str] | None = None) -> HopfHybridModel:
+    @property
+    def calibrated(self) -> bool:  # type: ignore[override]
+        """Whether ``predict_diagram(level=...)`` gives intervals (``fit(uncertainty=True)``)."""
+        return bool(getattr(self, "replicates_", None))
+
+    def fit(
+        self,
+        dataset: Any,
+        *,
+        signal_names: Sequence[str] | None = None,
+        uncertainty: bool = False,
+    ) -> HopfHybridModel:
         """Train on limit cycles, stable and unstable.
 
         Parameters
@@ -185,6 +198,11 @@ class HopfHybridModel(IdentifiedModel):
             or records ``(param, signals (n, m), sample_rate, stable)``.
         signal_names : sequence of str, optional
             Names of the signals of bare records.
+        uncertainty : bool
+            Also retrain the model without each orbit in turn (one member each, the
+            selected hyperparameters fixed: on the order of the fit's own time), so that
+            ``predict_diagram(level=...)`` gives intervals and :meth:`summary` standard
+            errors (jackknife and ensemble, :mod:`._uncertainty`).
 
         Returns
         -------
@@ -200,7 +218,14 @@ class HopfHybridModel(IdentifiedModel):
         check_hyperparameters(self)
         data = as_lco_data(dataset, signal_names)
         with one_blas_thread():
-            return self._fit(data, np.ones(len(data), dtype=bool))
+            self._fit(data, np.ones(len(data), dtype=bool))
+        self.replicates_: list[HybridState] = []
+        if uncertainty:
+            t0 = time.perf_counter()
+            self.replicates_ = uq.jackknife(self, data)
+            self.timings_["jackknife"] = time.perf_counter() - t0
+            self.timings_["total"] += self.timings_["jackknife"]
+        return self
 
     def _fit(self, data: LCOData, active: np.ndarray) -> HopfHybridModel:
         """Fit on the records ``active``. Inactive records keep their place in every array
@@ -401,9 +426,7 @@ class HopfHybridModel(IdentifiedModel):
     def omega0_(self) -> float:
         """:math:`\\omega_0` of eq. 5.10 [rad/s]: the speed's constant term (primary member)."""
         self._check_fitted()
-        st = self.state_
-        w0 = float(st.speed_params["w0"][st.primary])
-        return st.omega_scale * (math.exp(w0) if st.speed_config.form == "log" else w0)
+        return uq.omega0(self.state_, self.state_.primary)
 
     # --------------------------------------------------------------------- predictions
     def _range(self, rng: tuple[float, float] | None) -> tuple[float, float]:
@@ -421,6 +444,13 @@ class HopfHybridModel(IdentifiedModel):
             )
         lo, hi = self._range(query.range)
         return hybrid_diagram(st, st.primary, lo, hi, query.n_points, self.model_type)
+
+    def _add_intervals(self, diagram: Diagram, query: DiagramQuery, level: float) -> None:
+        """Jackknife-and-ensemble intervals (:func:`._uncertainty.add_intervals`), with a
+        warning where the prediction leaves the trained parameter range."""
+        trained = (float(np.min(self.training_["param"])), float(np.max(self.training_["param"])))
+        warn_extrapolation(self.state_.param_name, self._range(query.range), trained, 4)
+        uq.add_intervals(diagram, self.state_, self.replicates_, level)
 
     def ensemble_spread(
         self, range: tuple[float, float] | None = None, n_points: int = 50
@@ -510,8 +540,9 @@ class HopfHybridModel(IdentifiedModel):
     # ------------------------------------------------------------------------ summary
     def summary(self) -> dict[str, Any]:
         """``parameters`` (Hopf point ``mu0``, ``a2``, ``omega0``, fold, criticality and the
-        selected hyperparameters), ``standard_errors`` (none: the ensemble spread is in
-        ``ensemble``), ``losses``, ``cv`` and ``timings``."""
+        selected hyperparameters), ``standard_errors`` of ``mu0``, ``a2``, ``omega0``,
+        ``hopf_omega`` and ``fold`` (after ``fit(..., uncertainty=True)``; else empty),
+        ``ensemble`` (the spread over seeds), ``losses``, ``cv`` and ``timings``."""
         self._check_fitted()
         st = self.state_
         n = st.n_members
@@ -539,7 +570,7 @@ class HopfHybridModel(IdentifiedModel):
                 "n_members": n,
                 "primary_member": st.primary,
             },
-            "standard_errors": {},
+            "standard_errors": uq.named_standard_errors(self) if self.calibrated else {},
             "ensemble": ensemble,
             "losses": {**self.losses_, "cv_score": self.cv_.get("best_score")},
             "cv": self.cv_,
@@ -547,32 +578,22 @@ class HopfHybridModel(IdentifiedModel):
             "timings": self.timings_,
         }
 
+    _FITTED = ("criticality", "regularization", "n_iterations", "cv", "losses", "timings")
+    _FITTED += ("speed_regularization", "speed_cv")
+
     def _state(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
         settings, arrays = self.state_.to_json()
+        replicates, rep_arrays = states_to_json(self.replicates_, "jackknife")
+        arrays.update(rep_arrays)
         arrays.update({f"training_{k}": np.asarray(v) for k, v in self.training_.items()})
-        fitted = {
-            "criticality": self.criticality_,
-            "regularization": self.regularization_,
-            "n_iterations": self.n_iterations_,
-            "cv": self.cv_,
-            "speed_regularization": self.speed_regularization_,
-            "speed_cv": self.speed_cv_,
-            "losses": self.losses_,
-            "timings": self.timings_,
-        }
-        return {"model": settings, "fitted": fitted}, arrays
+        fitted = {k: getattr(self, f"{k}_") for k in self._FITTED}
+        return {"model": settings, "fitted": fitted, "jackknife": replicates}, arrays
 
     def _restore(self, state: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
         self.state_ = HybridState.from_json(state["model"], arrays)
-        f = state["fitted"]
-        self.criticality_ = f["criticality"]
-        self.regularization_ = float(f["regularization"])
-        self.n_iterations_ = int(f["n_iterations"])
-        self.cv_ = f["cv"]
-        self.speed_regularization_ = float(f["speed_regularization"])
-        self.speed_cv_ = f["speed_cv"]
-        self.losses_ = f["losses"]
-        self.timings_ = f["timings"]
+        for k in self._FITTED:
+            setattr(self, f"{k}_", state["fitted"][k])
+        self.replicates_ = states_from_json(state.get("jackknife", []), arrays, "jackknife")
         self.training_ = {
             k: np.asarray(arrays[f"training_{k}"])
             for k in ("param", "stable", "amplitude", "frequency")

@@ -16,7 +16,17 @@ from bifid.identify.hopf_hybrid._map import MapConfig, a2_of, mlp, mlp_static, u
 from bifid.identify.hopf_hybrid._observe import ObservationModel
 from bifid.identify.hopf_hybrid._speed import SpeedConfig, init_speed_params
 
-__all__ = ["N_GRID_INVERSE", "HybridState", "member", "plane_angles", "stack", "u12_batch"]
+__all__ = [
+    "N_GRID_INVERSE",
+    "HybridState",
+    "member",
+    "plane_angles",
+    "stack",
+    "states_from_json",
+    "states_to_json",
+    "u12_batch",
+    "u12_cycles",
+]
 
 N_GRID_INVERSE = 2048  # phases for the inversion of eq. 5.12
 
@@ -41,6 +51,21 @@ def u12_batch(mp: Any, config: MapConfig, u: np.ndarray, mu_t: float) -> np.ndar
     """:math:`\\mathbf U_{12}` of one member at points ``u`` (n, 2) and parameter ``mu_t``."""
     return np.asarray(
         _u12_compiled(config.width, config.depth)(mp, jnp.asarray(u), jnp.asarray(mu_t))
+    )
+
+
+@functools.lru_cache(maxsize=16)
+def _u12_cycles_compiled(width: int, depth: int):
+    static = mlp_static(3, 2, width, depth)
+    one = jax.vmap(lambda mp, u, m: u12(mp, static, u, m), in_axes=(None, 0, None))
+    return jax.jit(jax.vmap(one, in_axes=(None, 0, 0)))
+
+
+def u12_cycles(mp: Any, config: MapConfig, u: np.ndarray, mu_t: np.ndarray) -> np.ndarray:
+    r""":math:`\mathbf U_{12}` of one member on several cycles at once: points ``u``
+    (n, k, 2) of cycle ``j`` at parameter ``mu_t[j]`` → (n, k, 2)."""
+    return np.asarray(
+        _u12_cycles_compiled(config.width, config.depth)(mp, jnp.asarray(u), jnp.asarray(mu_t))
     )
 
 
@@ -212,6 +237,30 @@ class HybridState:
             signal_units=dict(st["signal_units"]),
             primary=int(st["primary"]),
         )
+
+
+def states_to_json(
+    states: list[HybridState], prefix: str
+) -> tuple[list[dict[str, Any]], dict[str, np.ndarray]]:
+    """Settings and arrays of several states; array names ``{prefix}{i}_{name}``."""
+    settings, arrays = [], {}
+    for i, state in enumerate(states):
+        st, arr = state.to_json()
+        settings.append(st)
+        arrays.update({f"{prefix}{i}_{k}": v for k, v in arr.items()})
+    return settings, arrays
+
+
+def states_from_json(
+    settings: list[dict[str, Any]], arrays: dict[str, np.ndarray], prefix: str
+) -> list[HybridState]:
+    """Inverse of :func:`states_to_json`."""
+    out = []
+    for i, st in enumerate(settings):
+        head = f"{prefix}{i}_"
+        own = {k[len(head) :]: v for k, v in arrays.items() if k.startswith(head)}
+        out.append(HybridState.from_json(st, own))
+    return out
 
 
 def _checked(arr: np.ndarray, shape: tuple) -> np.ndarray:

@@ -1,0 +1,153 @@
+"""Intervals of the hybrid Hopf model: jackknife over measured orbits and ensemble over seeds.
+
+The data are the analytic normal-form cycles of ``test_hopf_hybrid`` with a little noise, so
+the true Hopf point and fold are known; the interval's formula is checked against an
+independent computation from the public leave-one-out validation and the ensemble members,
+and its level scaling against Student's t. Coverage over replications:
+``benchmarks/bench_calibration.py --method hybrid``.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+
+import numpy as np
+import pytest
+import scipy.stats
+
+from bifid.errors import BifidInputError
+from bifid.identify import HopfHybridModel, load
+from test_hopf_hybrid import FAST, FOLD, MU0, NAMES, records
+
+NOISE, SEED = 0.003, 3
+CALIBRATION = 0.85  # the factor on Student's t of docs/uncertainty.md
+
+
+@pytest.fixture(scope="module")
+def model() -> HopfHybridModel:
+    return HopfHybridModel(**FAST).fit(
+        records(noise=NOISE, seed=SEED), signal_names=NAMES, uncertainty=True
+    )
+
+
+@pytest.fixture(scope="module")
+def diagram(model):
+    with pytest.warns(UserWarning, match="extrapolates"):
+        return model.predict_diagram(range=(0.5, 1.3), n_points=40, level=0.95)
+
+
+def jackknife_half_width(folds: list[float], members: list[float], level: float) -> float:
+    """``c t_{(1+level)/2, n-1} sqrt(v_J + v_S)`` computed from scratch."""
+    f, s = np.asarray(folds), np.asarray(members)
+    n = f.size
+    v_jack = (n - 1) / n * np.sum((f - f.mean()) ** 2)
+    v_seed = np.sum((s - s.mean()) ** 2) / (s.size - 1)
+    return CALIBRATION * scipy.stats.t.ppf(0.5 + level / 2, n - 1) * math.sqrt(v_jack + v_seed)
+
+
+def test_intervals_are_the_jackknife_and_ensemble_variance(model, diagram):
+    """Check the Hopf and fold intervals against the leave-one-out refits and the members."""
+    cv = model.cross_validate(records(noise=NOISE, seed=SEED), signal_names=NAMES)
+    n_members = model.summary()["parameters"]["n_members"]
+    (hopf,) = diagram.special("hopf")
+    (fold,) = diagram.special("cycle_fold")
+    for sp, key, member_value in (
+        (hopf, "hopf", lambda s: model.hopf_point(s)["param"]),
+        (fold, "fold", lambda s: model.cycle_fold(s)["param"]),
+    ):
+        half = jackknife_half_width(
+            [f[key] for f in cv["folds"]], [member_value(s) for s in range(n_members)], 0.95
+        )
+        lo, hi = sp.intervals["param"]
+        assert half > 0
+        assert lo == pytest.approx(sp.param - half, abs=1e-9 + 1e-6 * half)
+        assert hi == pytest.approx(sp.param + half, abs=1e-9 + 1e-6 * half)
+    se = model.summary()["standard_errors"]
+    t975 = scipy.stats.t.ppf(0.975, len(cv["folds"]) - 1)
+    assert CALIBRATION * se["mu0"] * t975 == pytest.approx(
+        (hopf.intervals["param"][1] - hopf.intervals["param"][0]) / 2, rel=1e-6
+    )
+    assert set(se) == {"mu0", "a2", "omega0", "hopf_omega", "fold"}
+    assert all(v > 0 and math.isfinite(v) for v in se.values())
+
+
+def test_intervals_hold_the_truth_and_scale_with_the_level(model, diagram):
+    """Check that the 95 % intervals hold the generating Hopf point and fold, and that a
+    lower level narrows every interval by the ratio of Student's t quantiles."""
+    (hopf,) = diagram.special("hopf")
+    (fold,) = diagram.special("cycle_fold")
+    assert hopf.intervals["param"][0] <= MU0 <= hopf.intervals["param"][1]
+    assert fold.intervals["param"][0] <= FOLD <= fold.intervals["param"][1]
+    n = len(records())
+    with pytest.warns(UserWarning, match="extrapolates"):
+        d50 = model.predict_diagram(range=(0.5, 1.3), n_points=40, level=0.5)
+    ratio = scipy.stats.t.ppf(0.75, n - 1) / scipy.stats.t.ppf(0.975, n - 1)
+    (h50,) = d50.special("hopf")
+    w95 = np.subtract(*hopf.intervals["omega"][::-1])
+    assert np.subtract(*h50.intervals["omega"][::-1]) == pytest.approx(ratio * w95, rel=1e-9)
+    band95, band50 = (
+        diagram.branches[0].intervals["amplitude"],
+        d50.branches[0].intervals["amplitude"],
+    )
+    amp = diagram.branches[0].data["amplitude"]
+    ok = np.isfinite(band95[0])
+    assert ok.sum() > 20  # the band is defined away from the fold
+    assert np.all(band95[0][ok] < amp[ok]) and np.all(amp[ok] < band95[1][ok])
+    np.testing.assert_allclose(band50[1][ok] - amp[ok], ratio * (band95[1][ok] - amp[ok]))
+
+
+def test_json_persistence_and_refusal(model, diagram, tmp_path, bifid_cli):
+    """Check the JSON keys of the contract, that a saved model predicts the same intervals,
+    and that a model fitted without uncertainty refuses a level and says how to get one."""
+    j = diagram.to_json()
+    assert j["level"] == 0.95
+    assert {"param_interval", "omega_interval"} <= set(j["hopf"][0])
+    assert {"param_interval", "period_interval", "amplitude_interval"} <= set(j["cycle_folds"][0])
+    assert set(j["cycle_folds"][0]["amplitude_interval"]) == set(NAMES)
+    assert any(o.get("amplitude_interval") for o in j["orbits"])
+    json.dumps(j)
+    model.save(tmp_path / "m")
+    loaded = load(tmp_path / "m")
+    assert loaded.summary()["standard_errors"] == model.summary()["standard_errors"]
+    with pytest.warns(UserWarning, match="extrapolates"):
+        again = loaded.predict_diagram(range=(0.5, 1.3), n_points=40, level=0.95)
+    assert again.special("hopf")[0].intervals == diagram.special("hopf")[0].intervals
+    r = bifid_cli("predict", tmp_path / "m", "--range", "0.5", "1.3", "--level", "0.9", "--json")
+    assert r.code == 0, r.stderr
+    assert len(r.json["hopf"][0]["param_interval"]) == 2
+    plain = HopfHybridModel(**FAST).fit(records(), signal_names=NAMES)
+    assert plain.summary()["standard_errors"] == {}
+    with pytest.raises(BifidInputError, match="uncertainty=True"):
+        plain.predict_diagram(level=0.95)
+
+
+def test_cli_fit_hopf_level(tmp_path, bifid_cli):
+    """Check `bifid fit hopf --level`: the intervals and standard errors in the JSON, and a
+    level outside (0, 1) refused before any training (exit 2)."""
+    from bifid.data import LCORecord, lco_dataset, save_dataset
+
+    recs = [
+        LCORecord(param=mu, signals=s, sample_rate=fs, stable=st)
+        for mu, s, fs, st in records(noise=NOISE, seed=SEED)
+    ]
+    ds = lco_dataset(
+        recs, list(NAMES), param_name="mu", param_units="", system="hopf", settings={}, source="t"
+    )
+    save_dataset(ds, tmp_path / "d.nc")
+    opts = ["--quiet", "--harmonics", "6", "--width", "8", "--iterations", "150"]
+    opts += ["--ensemble", "2", "--regularization", "1e-6", "--stopping", "final"]
+    opts += ["--omega-harmonics", "2", "--json"]
+    r = bifid_cli("fit", "hopf", tmp_path / "d.nc", "--level", "2", *opts)
+    assert r.code == 2 and "level" in r.stderr
+    r = bifid_cli(
+        "fit", "hopf", tmp_path / "d.nc", "--out", tmp_path / "m", "--level", "0.9", *opts
+    )
+    assert r.code == 0, r.stderr
+    out = r.json
+    assert out["intervals"]["level"] == 0.9
+    lo, hi = out["intervals"]["hopf"][0]["param_interval"]
+    assert lo < out["parameters"]["mu0"] < hi
+    lo, hi = out["intervals"]["cycle_folds"][0]["param_interval"]
+    assert lo < out["parameters"]["fold"] < hi
+    assert set(out["standard_errors"]) == {"mu0", "a2", "omega0", "hopf_omega", "fold"}
