@@ -111,13 +111,20 @@ class StageCache:
         return seconds, load_dataset(self.directory / "dataset.nc")
 
     def model(
-        self, key: str, estimator: type, hyper: Mapping[str, Any], data: Any, settings: dict
+        self,
+        key: str,
+        estimator: type,
+        hyper: Mapping[str, Any],
+        data: Any,
+        settings: dict,
+        fit_options: Mapping[str, Any] | None = None,
     ) -> tuple[float, Any]:
-        """The ``model`` stage: ``estimator(**hyper).fit(data)`` saved in ``model/`` unless it
-        is fresh; the seconds spent and the loaded model."""
+        """The ``model`` stage: ``estimator(**hyper).fit(data, **fit_options)`` saved in
+        ``model/`` unless it is fresh; the seconds spent and the loaded model."""
 
         def fit() -> None:
-            estimator(**hyper).fit(data).save(self.directory / "model", settings=settings)
+            model = estimator(**hyper).fit(data, **dict(fit_options or {}))
+            model.save(self.directory / "model", settings=settings)
 
         seconds = self.ensure("model", key, ["model/model.json"], fit)
         return seconds, estimator.load(self.directory / "model")

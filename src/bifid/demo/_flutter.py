@@ -57,6 +57,8 @@ class FlutterDemoSettings:
         (17.25, False),
     )
     model: dict[str, Any] = field(default_factory=lambda: {"n_ensemble": 3, "seed": 0})
+    # level of the model's intervals (Hopf and fold speeds, amplitude band); None: none
+    level: float | None = 0.95
     # mechanistic fit (ch. 4): k_a2, k_a3 from a start off by these factors
     mechanistic: bool = True
     mechanistic_start: tuple[float, float] = (1.3, 0.7)
@@ -97,7 +99,9 @@ def run_flutter_demo(
     keys = {"truth": settings_key(st["truth"])}
     # the campaign uses the truth only for its noise levels (branch amplitudes over the range)
     keys["campaign"] = settings_key({**st["campaign"], "truth_range": cfg.truth_range})
-    keys["model"] = settings_key({**st["model"], "campaign": keys["campaign"]})
+    keys["model"] = settings_key(
+        {**st["model"], "uncertainty": cfg.level is not None, "campaign": keys["campaign"]}
+    )
     keys["mechanistic"] = settings_key({**st["mechanistic"], "campaign": keys["campaign"]})
     timings: dict[str, float] = {}
     stages = [
@@ -137,7 +141,12 @@ def run_flutter_demo(
         from bifid.identify.hopf_hybrid import HopfHybridModel
 
         timings["model"], model = cache.model(
-            keys["model"], HopfHybridModel, cfg.model, data, {"demo": "flutter", **st["model"]}
+            keys["model"],
+            HopfHybridModel,
+            cfg.model,
+            data,
+            {"demo": "flutter", **st["model"]},
+            fit_options={"uncertainty": cfg.level is not None},
         )
 
         # 3b. mechanistic identification of the same data (thesis ch. 4)
@@ -171,7 +180,7 @@ def run_flutter_demo(
         t0 = time.perf_counter()
         from bifid.demo._flutter_report import compare, write_report
 
-        errors = compare(model, truth, tarr)
+        errors = compare(model, truth, tarr, cfg.level)
         if mech is not None:
             errors["checks"].update(_mechanistic_checks(mech["summary"]))
         timings["compare"] = time.perf_counter() - t0

@@ -36,16 +36,56 @@ def _aligned_error(model_z: np.ndarray, truth_z: np.ndarray) -> float:
     return float(np.max(np.sqrt(np.mean((model_z - tz) ** 2, axis=0)) / rms))
 
 
-def compare(model, truth: dict[str, Any], tarr: dict[str, np.ndarray]) -> dict[str, Any]:
-    """Model predictions against the truth: special points, amplitudes, frequencies, series."""
+def _diagram_range(truth: dict[str, Any]) -> tuple[float, float]:
+    """Speeds of the predicted diagram: below the true cycle fold to above the Hopf point."""
+    return (
+        float(truth["fold"]["U"]) - 0.6 if truth["fold"] else 14.0,
+        float(truth["hopf"]["U"]) + 0.4,
+    )
+
+
+def _intervals(diagram: dict[str, Any], truth: dict[str, Any]) -> list[dict[str, Any]]:
+    """The predicted Hopf and fold speeds with their intervals, against the truth."""
+    rows = []
+    for name, key, true in (
+        ("Hopf speed", "hopf", truth["hopf"]["U"]),
+        ("cycle-fold speed", "cycle_folds", truth["fold"]["U"] if truth["fold"] else None),
+    ):
+        points = diagram.get(key) or []
+        interval = points[0].get("param_interval") if points else None
+        if interval is None or true is None:
+            continue
+        lo, hi = (float(v) for v in interval)
+        rows.append(
+            {
+                "quantity": name,
+                "model": float(points[0]["param"]),
+                "interval": [lo, hi],
+                "truth": float(true),
+                "covered": bool(lo <= true <= hi),
+            }
+        )
+    return rows
+
+
+def compare(
+    model, truth: dict[str, Any], tarr: dict[str, np.ndarray], level: float | None = None
+) -> dict[str, Any]:
+    """Model predictions against the truth: special points (with their intervals at
+    ``level``), amplitudes, frequencies, series; ``diagram`` is the predicted diagram's
+    JSON."""
 
     hopf = model.hopf_point()
     fold = model.cycle_fold()
+    diagram = model.predict_diagram(range=_diagram_range(truth), n_points=160, level=level)
+    diagram = diagram.to_json()
     pred = {
         "hopf_U": hopf["param"],
         "hopf_omega": hopf["omega"],
         "criticality": hopf["criticality"],
         "fold_U": fold["param"] if fold else None,
+        "level": level,
+        "intervals": _intervals(diagram, truth) if level is not None else [],
     }
     err: dict[str, Any] = {
         "hopf_U": abs(hopf["param"] - truth["hopf"]["U"]),
@@ -90,20 +130,20 @@ def compare(model, truth: dict[str, Any], tarr: dict[str, np.ndarray]) -> dict[s
         "frequency_rel": check(err["frequency_rel_max"], CHECKS["frequency_rel"], ""),
         "series_rel": check(err["series_rel_max"], CHECKS["series_rel"], ""),
     }
-    return {"prediction": pred, "errors": err, "checks": checks, "test_rows": rows}
+    return {
+        "prediction": pred,
+        "errors": err,
+        "checks": checks,
+        "test_rows": rows,
+        "diagram": diagram,
+    }
 
 
 # ------------------------------------------------------------------------------- figures
-def diagram_figure(model, data, truth, tarr, path: Path, mech=None) -> Path:
-    """Amplitude–speed diagram: truth branch, measured LCOs, model branch and its band."""
-    rng = (
-        float(truth["fold"]["U"]) - 0.6 if truth["fold"] else 14.0,
-        float(truth["hopf"]["U"]) + 0.4,
-    )
-    pred = {
-        **model.predict_diagram(range=rng, n_points=160).to_json(),
-        "band": model.ensemble_spread(rng, n_points=80),
-    }
+def diagram_figure(pred: dict[str, Any], data, truth, tarr, path: Path, mech=None) -> Path:
+    """Amplitude–speed diagram: truth branch, measured LCOs, the model's branch ``pred``
+    (the predicted diagram's JSON) with its amplitude band and the intervals of its Hopf
+    and fold speeds (shaded spans) where it has them."""
     fig = Figure(figsize=(11, 4.2))
     axes = fig.subplots(1, 2)
     sel = tarr["stable"].astype(bool)
@@ -132,14 +172,7 @@ def diagram_figure(model, data, truth, tarr, path: Path, mech=None) -> Path:
                 alpha=0.85,
                 label=f"model {'stable' if st else 'unstable'}",
             )
-        band = pred.get("band") or {}
-        grid = np.asarray(band.get("param", []))
-        for bname, color in (("outer", "tab:blue"), ("inner", "tab:red")):
-            b = band.get("branches", {}).get(bname, {}).get(s)
-            if b is not None and grid.size:
-                lo = np.asarray(b["min"], dtype=float)
-                hi = np.asarray(b["max"], dtype=float)
-                ax.fill_between(grid, lo, hi, color=color, alpha=0.15, lw=0)
+        _interval_band(ax, pred, s, u, stab)
         if mech is not None and mech["branch"] is not None:
             b = mech["branch"]
             for st, ls in ((True, "-"), (False, "--")):
@@ -194,9 +227,27 @@ def diagram_figure(model, data, truth, tarr, path: Path, mech=None) -> Path:
     axes[0].legend(fontsize=7, loc="upper right")
     axes[0].set_title("heave")
     axes[1].set_title("pitch")
-    fig.suptitle("flutter: measured LCOs (virtual PP-CBC), hybrid model (band: ensemble), truth")
+    level = pred.get("level")
+    band = f"shaded: {level:.0%} intervals" if level else "no intervals"
+    fig.suptitle(f"flutter: measured LCOs (virtual PP-CBC), hybrid model ({band}), truth")
     fig.tight_layout()
     return save_figure(fig, path)
+
+
+def _interval_band(ax, pred: dict[str, Any], s: str, u: np.ndarray, stab: np.ndarray) -> None:
+    """The amplitude band of each predicted branch and the Hopf / fold speed intervals."""
+    band = np.array(
+        [(o.get("amplitude_interval") or {}).get(s, (np.nan, np.nan)) for o in pred["orbits"]],
+        dtype=float,
+    ).reshape(-1, 2)
+    for st, color in ((True, "tab:blue"), (False, "tab:red")):
+        m = stab == st
+        if np.any(np.isfinite(band[m])):
+            ax.fill_between(u[m], band[m, 0], band[m, 1], color=color, alpha=0.18, lw=0)
+    for key, color in (("hopf", "tab:orange"), ("cycle_folds", "tab:purple")):
+        for point in pred.get(key) or []:
+            if point.get("param_interval"):
+                ax.axvspan(*point["param_interval"], color=color, alpha=0.12, lw=0)
 
 
 def portraits_figure(model, data, path: Path, n_panels: int = 3) -> Path:
@@ -283,7 +334,7 @@ def write_report(
     from bifid.report.html import Report
 
     figs = {
-        "diagram": diagram_figure(model, data, truth, tarr, out / "diagram.png", mech),
+        "diagram": diagram_figure(errors["diagram"], data, truth, tarr, out / "diagram.png", mech),
         "portraits": portraits_figure(model, data, out / "portraits.png"),
         "series": series_figure(model, truth, tarr, errors["test_rows"], out / "series.png"),
     }
@@ -333,11 +384,42 @@ def _prediction_section(rep, figs, errors) -> None:
             passed=[v["passed"] for v in chk.values()],
         )
     )
+    level = errors["prediction"].get("level")
+    intervals = errors["prediction"].get("intervals") or []
+    if intervals:
+        sec.append(
+            rep.text(
+                f"Intervals at {level:.0%} (jackknife over the measured cycles and the "
+                "ensemble over training seeds; see the uncertainty guide). At this level one "
+                "interval in twenty misses the truth by design."
+            )
+        )
+        sec.append(
+            rep.table(
+                ["quantity", "model [m/s]", f"{level:.0%} interval [m/s]", "truth [m/s]"],
+                [
+                    [
+                        r["quantity"],
+                        f"{r['model']:.3f}",
+                        f"{r['interval'][0]:.3f} – {r['interval'][1]:.3f}",
+                        f"{r['truth']:.3f}",
+                    ]
+                    for r in intervals
+                ],
+                passed=[r["covered"] for r in intervals],
+            )
+        )
+    shaded = (
+        f"shaded: {level:.0%} intervals of amplitude and of the Hopf (orange) and fold "
+        "(purple) speeds"
+        if level
+        else "no intervals"
+    )
     sec.append(
         rep.figure(
             figs["diagram"],
             "Bifurcation diagram: truth (black), measured LCOs "
-            "(dots), hybrid model (blue/red; shaded: ensemble band), "
+            f"(dots), hybrid model (blue/red; {shaded}), "
             "mechanistic fit (green).",
         )
     )
