@@ -9,7 +9,6 @@ system (:mod:`._predict`).
 from __future__ import annotations
 
 import math
-import warnings
 from collections.abc import Mapping, Sequence
 from typing import Any
 
@@ -20,7 +19,7 @@ from threadpoolctl import threadpool_limits
 from bifid.continuation import Diagram
 from bifid.errors import BifidInputError, ConvergenceError
 from bifid.identify._base import DiagramQuery, IdentifiedModel, Orbit
-from bifid.identify._intervals import Covariance
+from bifid.identify._intervals import Covariance, warn_extrapolation
 from bifid.identify._persistence import register_model_type
 from bifid.identify._records import LCOData, as_lco_data
 from bifid.identify.mechanistic._branch import hopf_summary
@@ -449,14 +448,8 @@ class MechanisticModel(IdentifiedModel):
         """Delta-method intervals on the predicted diagram (:func:`._uncertainty.add_intervals`),
         with a warning where the prediction leaves the trained parameter range."""
         lo, hi = float(np.min(self.data_.param)), float(np.max(self.data_.param))
-        if query.range is not None and (query.range[0] < lo or query.range[1] > hi):
-            warnings.warn(
-                f"the prediction over {self.param_} = {query.range[0]:g}..{query.range[1]:g} "
-                f"extrapolates beyond the trained range {lo:g}..{hi:g}: its intervals rest on "
-                "the model's form there, not on data.",
-                UserWarning,
-                stacklevel=3,
-            )
+        if query.range is not None:
+            warn_extrapolation(self.param_, query.range, (lo, hi), stacklevel=4)
         add_intervals(diagram, self._system(), self.p_, self.param_, self.covariance(), level)
 
     # -------------------------------------------------------------------------- summary
