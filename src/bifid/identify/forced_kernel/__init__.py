@@ -50,7 +50,9 @@ The pipeline, one module per step: :mod:`._data` (training points from datasets 
 arrays), :mod:`._fitting` (κ with ``b``, then ``a`` and ``φ``, on the Gaussian processes of
 :mod:`._gp` / :mod:`._gp_core`), :mod:`._reduced` (the learned dynamics as pure JAX
 functions), :mod:`._predict` (FRCs by pseudo-arclength continuation, S-curves, backbones,
-fixed points and their stability) and :mod:`._bands` (posterior-sample bands).
+fixed points and their stability), :mod:`._bands` (posterior-sample bands) and
+:mod:`._uncertainty` (intervals at a level: posterior samples and the leave-one-out
+jackknife).
 :class:`ForcedKernelModel` (:mod:`._model`) is the estimator.
 """
 

@@ -23,13 +23,23 @@ from scipy.interpolate import CubicSpline
 from bifid.continuation import Branch
 from bifid.errors import BifidInputError
 from bifid.identify.forced_kernel._reduced import (
+    ReducedSamples,
     ab_grid_samples,
     backbone_samples,
     frc_samples_at_psi,
 )
 from bifid.identify.forced_kernel._state import ReducedFit
 
-__all__ = ["add_backbone_band", "add_frc_band", "add_scurve_band", "band_coverage"]
+__all__ = [
+    "add_backbone_band",
+    "add_frc_band",
+    "add_scurve_band",
+    "backbone_sample_omega",
+    "band_coverage",
+    "branch_key",
+    "frc_sample_curves",
+    "scurve_sample_forcing",
+]
 
 
 def _band_meta(level: float, n_samples: int, seed: int, **extra: float) -> dict[str, Any]:
@@ -52,21 +62,61 @@ def _quantiles(values: np.ndarray, level: float) -> np.ndarray:
         )
 
 
-def add_frc_band(rf: ReducedFit, branch: Branch, n_samples: int, level: float, seed: int) -> None:
-    """Add the posterior-sample band of an FRC to ``branch.data`` (``band_lower`` /
-    ``band_upper`` (n, 2) as (Ω, amplitude) points, ``band_offset``, ``normal``,
-    ``sample_omega`` / ``sample_amplitude`` (S, n)) and ``branch.meta["band"]``."""
-    gamma = rf.forcing_scale * float(branch.data["forcing"][0])
-    s_om, s_rho = branch.meta["scales"]["omega"], branch.meta["scales"]["amplitude"]
-    rho, psi, om = branch.solutions[:, 0], branch.solutions[:, 1], branch.params
-    u, res = frc_samples_at_psi(
-        rf.model, rf.samples(n_samples, seed), jnp.asarray(gamma), psi, rho, om
+def branch_key(branch: Branch) -> tuple[bytes, bytes]:
+    """A key of a predicted branch's points (for :meth:`ReducedFit.cached`)."""
+    return (
+        np.asarray(branch.params, dtype=float).tobytes(),
+        np.asarray(branch.solutions, dtype=float).tobytes(),
     )
+
+
+def frc_sample_curves(
+    rf: ReducedFit, branch: Branch, samples: ReducedSamples
+) -> tuple[np.ndarray, np.ndarray]:
+    """Every sampled reduced model's FRC ``(Ω, ρ)`` (S, n) at the phases of the mean
+    ``branch``; NaN where the solve failed."""
+    gamma = rf.forcing_scale * float(branch.data["forcing"][0])
+    rho, psi, om = branch.solutions[:, 0], branch.solutions[:, 1], branch.params
+    u, res = frc_samples_at_psi(rf.model, samples, jnp.asarray(gamma), psi, rho, om)
     r_s, o_s, res = np.asarray(u[..., 0]), np.asarray(u[..., 1]), np.asarray(res)
     bad = ~(
         np.isfinite(res) & (res < 1e-8 * max(gamma, 1e-300) + 1e-12) & (r_s > 0) & np.isfinite(o_s)
     )
-    r_s, o_s = np.where(bad, np.nan, r_s), np.where(bad, np.nan, o_s)
+    return np.where(bad, np.nan, o_s), np.where(bad, np.nan, r_s)
+
+
+def scurve_sample_forcing(rf: ReducedFit, branch: Branch, samples: ReducedSamples) -> np.ndarray:
+    """Every sampled reduced model's forcing ``F`` (S, n) at the amplitudes of the mean
+    S-curve ``branch``."""
+    rho = branch.solutions[:, 0]
+    om = branch.data["omega"]
+    a_s, b_s = (np.asarray(v) for v in ab_grid_samples(rf.model, samples, rho, om))
+    return np.sqrt(a_s**2 + (b_s - om) ** 2 * rho**2) / rf.forcing_scale
+
+
+def backbone_sample_omega(rf: ReducedFit, branch: Branch, samples: ReducedSamples) -> np.ndarray:
+    """Every sampled reduced model's backbone frequency (S, n) at the amplitudes of the
+    mean backbone ``branch``; NaN where the solve failed."""
+    om = branch.data["omega"]
+    om_s, res_s = (
+        np.asarray(v)
+        for v in backbone_samples(rf.model, samples, branch.params, jnp.asarray(om[0]))
+    )
+    tol = 1e-9 * max(abs(float(branch.meta.get("backbone_start", om[0]))), 1.0)
+    return np.where(res_s < tol, om_s, np.nan)
+
+
+def add_frc_band(rf: ReducedFit, branch: Branch, n_samples: int, level: float, seed: int) -> None:
+    """Add the posterior-sample band of an FRC to ``branch.data`` (``band_lower`` /
+    ``band_upper`` (n, 2) as (Ω, amplitude) points, ``band_offset``, ``normal``,
+    ``sample_omega`` / ``sample_amplitude`` (S, n)) and ``branch.meta["band"]``."""
+    s_om, s_rho = branch.meta["scales"]["omega"], branch.meta["scales"]["amplitude"]
+    rho, om = branch.solutions[:, 0], branch.params
+    o_s, r_s = rf.cached(
+        ("frc", n_samples, seed, *branch_key(branch)),
+        lambda: frc_sample_curves(rf, branch, rf.samples(n_samples, seed)),
+    )
+    bad = np.isnan(r_s)
     # normal of the mean curve in scaled coordinates (Ω/s_Ω, ρ/s_ρ)
     t_om, t_r = np.gradient(om / s_om), np.gradient(rho / s_rho)
     nrm = np.hypot(t_om, t_r)
@@ -90,12 +140,10 @@ def add_scurve_band(
 ) -> None:
     """Add the posterior-sample band of F along an S-curve (``band_forcing`` (n, 2),
     ``sample_forcing`` (S, n))."""
-    rho = branch.solutions[:, 0]
-    om = branch.data["omega"]
-    a_s, b_s = (
-        np.asarray(v) for v in ab_grid_samples(rf.model, rf.samples(n_samples, seed), rho, om)
+    g_s = rf.cached(
+        ("scurve", n_samples, seed, *branch_key(branch)),
+        lambda: scurve_sample_forcing(rf, branch, rf.samples(n_samples, seed)),
     )
-    g_s = np.sqrt(a_s**2 + (b_s - om) ** 2 * rho**2) / rf.forcing_scale
     branch.data.update(band_forcing=_quantiles(g_s, level), sample_forcing=g_s)
     branch.meta["band"] = _band_meta(level, n_samples, seed)
 
@@ -105,15 +153,10 @@ def add_backbone_band(
 ) -> None:
     """Add the posterior-sample band of Ω along a backbone (``band_omega`` (n, 2),
     ``sample_omega`` (S, n))."""
-    om = branch.data["omega"]
-    om_s, res_s = (
-        np.asarray(v)
-        for v in backbone_samples(
-            rf.model, rf.samples(n_samples, seed), branch.params, jnp.asarray(om[0])
-        )
+    om_s = rf.cached(
+        ("backbone", n_samples, seed, *branch_key(branch)),
+        lambda: backbone_sample_omega(rf, branch, rf.samples(n_samples, seed)),
     )
-    tol = 1e-9 * max(abs(float(branch.meta.get("backbone_start", om[0]))), 1.0)
-    om_s = np.where(res_s < tol, om_s, np.nan)
     branch.data.update(band_omega=_quantiles(om_s, level), sample_omega=om_s)
     branch.meta["band"] = _band_meta(
         level, n_samples, seed, failed_fraction=float(np.mean(np.isnan(om_s)))

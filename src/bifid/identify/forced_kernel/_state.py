@@ -3,7 +3,9 @@ trained ranges, with the posterior samples and eigenvalues predictions need."""
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
@@ -40,6 +42,16 @@ class ReducedFit:
     rho_range: tuple[float, float]
     omega_range: tuple[float, float]
     forcing_range: tuple[float, float]
+    _last: dict[Any, Any] = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def cached(self, key: Any, compute: Callable[[], Any]) -> Any:
+        """``compute()``, remembered for the last four keys (predicting the same diagram at
+        several levels solves its sampled responses once)."""
+        if key not in self._last:
+            self._last[key] = compute()
+            while len(self._last) > 4:
+                self._last.pop(next(iter(self._last)))
+        return self._last[key]
 
     @property
     def model(self) -> ReducedModel:

@@ -1,39 +1,57 @@
-r"""Intervals of a kernel model's predicted forced responses, from posterior function samples.
+r"""Intervals of a kernel model's predicted forced responses: posterior samples and jackknife.
 
-The Gaussian processes of ``a(ρ, Ω)`` and ``b(ρ, Ω)`` (eqs. 6.15, 6.19) were fitted with
-their measurement noise as a hyperparameter; their posterior over functions (pathwise
-conditioning, :meth:`~._state.ReducedFit.samples`, seeded) carries the uncertainty that
-noise leaves in the reduced dynamics. Every posterior sample is a reduced model of its own;
-its response is solved where the mean response was (:mod:`._bands`) and every predicted
-quantity is read off each sample's response. An interval at level :math:`\ell` is the
-central :math:`\ell` quantile of a quantity over the samples (an equal-tailed credible
-interval at the fitted hyperparameters):
+Every quantity ``q`` of a predicted FRC, S-curve or backbone (below) is read off many reduced
+models at once, each solved where the mean response was (:mod:`._bands`):
 
-- **FRC points** (eq. 6.11): the amplitude ρ of each sample at the mean branch's phase ψ
-  (ψ is a regular parameter along an FRC of a single-mode response).
-- **FRC folds**: a fold of the mean curve is a local extremum of Ω(ψ); on each sample the
-  extremum of the same kind within a window of the mean fold's index gives the sample's fold
-  frequency and amplitude (a sample whose extremum lies on the window's edge has no fold
+- **posterior samples** of ``a(ρ, Ω)`` and ``b(ρ, Ω)`` (eqs. 6.15, 6.19; pathwise
+  conditioning, :meth:`~._state.ReducedFit.samples`, seeded) give the spread the Gaussian
+  processes claim at their fitted hyperparameters, :math:`v_\mathrm{post}` (the squared
+  half-distance between the 16 % and 84 % sample quantiles, robust to a few wild samples);
+- the **leave-one-out jackknife**: the ``n`` posterior means fitted without training point
+  ``i`` (closed form at fixed hyperparameters, :math:`\alpha^{(-i)} = \alpha - K_y^{-1}e_i\,
+  \alpha_i/[K_y^{-1}]_{ii}`, point ``i`` leaving ``a`` and ``b`` together) give
+  :math:`q_{(i)}` and the jackknife variance
+  :math:`v_\mathrm{jack} = \frac{n-1}{n}\sum_i (q_{(i)} - \bar q_{(\cdot)})^2`. It measures
+  how much the estimate moves with the data actually seen — robust to what the GP's
+  homoscedastic noise model gets wrong (noise on the inputs ρ and ψ, noise that varies
+  along the curve, a noise level selected too small), which the posterior is not.
+
+The interval at level :math:`\ell` is
+
+.. math::
+
+    q \pm \lambda\, t_{(1+\ell)/2,\,\nu} \sqrt{v_\mathrm{post} + v_\mathrm{jack}},\qquad
+    \nu = \frac{(v_\mathrm{post} + v_\mathrm{jack})^2}{v_\mathrm{jack}^2/\nu_\mathrm{jack}},
+    \quad \nu_\mathrm{jack} = \frac{(\sum_i d_i^2)^2}{\sum_i d_i^4},\;
+    d_i = q_{(i)} - \bar q_{(\cdot)},
+
+with Welch–Satterthwaite degrees of freedom: :math:`\nu_\mathrm{jack}` is the effective
+number of training points that move the estimate, so an estimate that hinges on a few
+points (a peak seen by two measurements) gets Student-t quantiles with few degrees of
+freedom instead of the normal ones. Where fewer than three jackknife replicates solve, the
+posterior spread is used alone. The quantities:
+
+- **FRC points** (eq. 6.11): the amplitude ρ at the mean branch's phase ψ (ψ is a regular
+  parameter along an FRC of a single-mode response).
+- **FRC folds**: a fold of the mean curve is a local extremum of Ω(ψ); on each sampled model
+  the extremum of the same kind within a window of the mean fold's index gives its fold
+  frequency and amplitude (a model whose extremum lies on the window's edge has no fold
   there and is left out). Extrema are refined between the branch's points by the parabola
   through the extreme point and its neighbours.
-- **Peak**: the sample's largest amplitude and its frequency (refined the same way).
-- **S-curve points and folds**: the forcing ``F = sqrt(a² + (b − Ω)² ρ²)/κ`` of each sample at
-  the mean branch's ρ, and its extrema near the mean's folds.
-- **Backbone points** (eq. 6.21): the sample's frequency at each amplitude.
+- **Peak**: the largest amplitude and its frequency (refined the same way).
+- **S-curve points and folds**: the forcing ``F = sqrt(a² + (b − Ω)² ρ²)/κ`` at the mean
+  branch's ρ, and its extrema near the mean's folds.
+- **Backbone points** (eq. 6.21): the frequency at each amplitude.
 
-**Calibration of the spread.** At fitted hyperparameters the posterior is over-confident
-when the selected noise level or length scales are too small (few points: the marginal
-likelihood may interpolate the noise). The standardised leave-one-out residuals
-:math:`z_i = [K_y^{-1}y]_i / \sqrt{[K_y^{-1}]_{ii}}` of both GPs (closed form, one Cholesky
-factor) are standard normal when the posterior is calibrated; their split-conformal quantile
-:math:`q_\ell` at level :math:`\ell` (:func:`~bifid.identify._intervals.conformal_quantile`)
-against the normal one :math:`z_\ell` gives the factor
-:math:`\lambda = \max(1, q_\ell / z_\ell)` by which every interval's distance from the mean
-model's prediction is stretched (it never narrows an interval).
+**Leave-one-out stretch.** The standardised leave-one-out residuals
+:math:`z_i = [K_y^{-1}y]_i / \sqrt{[K_y^{-1}]_{ii}}` of both GPs are standard normal when
+their predictive distribution is calibrated; their split-conformal quantile :math:`q_\ell`
+(:func:`~bifid.identify._intervals.conformal_quantile`) against the normal one
+:math:`z_\ell` gives :math:`\lambda = \max(1, q_\ell / z_\ell)` (it never narrows an
+interval).
 
 The intervals are on the response of the noise-free system (what the model predicts), not
-on a new noisy measurement of it. Hyperparameters are held at their fitted values; their
-uncertainty enters only through :math:`\lambda`.
+on a new noisy measurement of it. Hyperparameters are held at their fitted values.
 """
 
 from __future__ import annotations
@@ -43,6 +61,7 @@ import warnings
 import jax
 import jax.numpy as jnp
 import numpy as np
+import scipy.stats
 
 from bifid.continuation import Branch, Diagram
 from bifid.identify._intervals import conformal_quantile, critical_value
@@ -50,17 +69,29 @@ from bifid.identify.forced_kernel._bands import (
     add_backbone_band,
     add_frc_band,
     add_scurve_band,
+    backbone_sample_omega,
+    branch_key,
+    frc_sample_curves,
+    scurve_sample_forcing,
 )
+from bifid.identify.forced_kernel._gp_core import GPSamples
+from bifid.identify.forced_kernel._reduced import ReducedSamples
 from bifid.identify.forced_kernel._state import ReducedFit
 
-__all__ = ["add_intervals"]
+__all__ = ["add_intervals", "jackknife_samples"]
+
+_Q16 = float(scipy.stats.norm.cdf(-1.0))
 
 
 @jax.jit
+def _kinv(chol: jnp.ndarray) -> jnp.ndarray:
+    """``K_y⁻¹`` from the Cholesky factor of ``K_y``."""
+    return jax.scipy.linalg.cho_solve((chol, True), jnp.eye(chol.shape[0], dtype=chol.dtype))
+
+
 def _standardised_loo(chol: jnp.ndarray, alpha: jnp.ndarray) -> jnp.ndarray:
     """``[K_y⁻¹y]_i / sqrt([K_y⁻¹]_ii)`` from the Cholesky factor of ``K_y``."""
-    kinv = jax.scipy.linalg.cho_solve((chol, True), jnp.eye(chol.shape[0], dtype=chol.dtype))
-    return alpha / jnp.sqrt(jnp.diag(kinv))
+    return alpha / jnp.sqrt(jnp.diag(_kinv(chol)))
 
 
 def loo_scale(rf: ReducedFit, level: float) -> float:
@@ -78,17 +109,59 @@ def loo_scale(rf: ReducedFit, level: float) -> float:
     return max(1.0, q / critical_value(level))
 
 
+def jackknife_samples(rf: ReducedFit) -> ReducedSamples:
+    """The ``n`` leave-one-point-out posterior means of ``a`` and ``b`` as function samples.
+
+    Leaving training point ``i`` out of a GP at fixed hyperparameters changes its weights
+    to ``α⁽⁻ⁱ⁾ = α − K_y⁻¹e_i α_i / [K_y⁻¹]_ii`` (``α⁽⁻ⁱ⁾_i = 0``); the mean
+    ``k(x, X) α⁽⁻ⁱ⁾`` is a pathwise sample with no prior part. Point ``i`` leaves ``a`` and
+    ``b`` together (the pseudo-observations of ``a`` are never left out).
+    """
+    n = int(np.sum(np.asarray(rf.gp_b.state_.mask) > 0))
+
+    def gp(st) -> GPSamples:
+        kinv = np.asarray(_kinv(st.chol))
+        alpha = np.asarray(st.alpha)
+        idx = np.arange(n)
+        v = alpha[None, :] - kinv[idx, :] * (alpha[idx] / kinv[idx, idx])[:, None]
+        d, m = st.n_dim, len(st.monomials)
+        return GPSamples(
+            freq=jnp.zeros((n, 1, d)),
+            phase=jnp.zeros((n, 1)),
+            weight=jnp.zeros((n, 1)),
+            beta=jnp.zeros((n, m)),
+            v=jnp.asarray(v),
+        )
+
+    return ReducedSamples(a=gp(rf.gp_a.state_), b=gp(rf.gp_b.state_))
+
+
 def _interval(
-    samples: np.ndarray, level: float, centre: np.ndarray | float, scale: float
+    post: np.ndarray,
+    jack: np.ndarray,
+    level: float,
+    centre: np.ndarray | float,
+    scale: float,
 ) -> tuple[np.ndarray, np.ndarray]:
-    """Central ``level`` quantiles over axis 0 (samples), NaN-aware, their distances from
-    ``centre`` (the mean model's value) stretched by ``scale``."""
-    q = 0.5 * (1.0 - level)
+    """``centre ± scale · t_ν · sqrt(v_post + v_jack)`` over axis 0 (module docstring):
+    ``v_post`` from the posterior samples ``post`` (S, ...), ``v_jack`` the jackknife
+    variance of the leave-one-out values ``jack`` (n, ...), ``ν`` by Welch–Satterthwaite.
+    NaN-aware (failed samples and replicates are left out)."""
+    c = np.asarray(centre, dtype=float)
+    post, jack = np.asarray(post, dtype=float), np.asarray(jack, dtype=float)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)
-        lo, hi = np.nanquantile(samples, q, axis=0), np.nanquantile(samples, 1.0 - q, axis=0)
-    c = np.asarray(centre, dtype=float)
-    return c + scale * (lo - c), c + scale * (hi - c)
+        q16, q84 = np.nanquantile(post, [_Q16, 1.0 - _Q16], axis=0)
+        v_post = (0.5 * (q84 - q16)) ** 2  # robust to a few wild samples
+        n = np.sum(np.isfinite(jack), axis=0)
+        d2 = (jack - np.nanmean(jack, axis=0)) ** 2
+        v_jack = (n - 1) / np.maximum(n, 1) * np.nansum(d2, axis=0)
+        dof_jack = np.nansum(d2, axis=0) ** 2 / np.nansum(d2**2, axis=0)
+        ok = (n >= 3) & np.isfinite(v_jack) & (v_jack > 0)
+        v_jack = np.where(ok, v_jack, 0.0)  # no usable jackknife: the posterior alone
+        dof = np.where(ok, (v_post + v_jack) ** 2 / (v_jack**2 / np.maximum(dof_jack, 1.0)), np.inf)
+        half = scale * np.vectorize(critical_value)(level, dof) * np.sqrt(v_post + v_jack)
+    return c - half, c + half
 
 
 def _sample_extrema(
@@ -120,21 +193,33 @@ def _frc_intervals(
     rf: ReducedFit, b: Branch, level: float, n_samples: int, seed: int, lam: float
 ) -> None:
     add_frc_band(rf, b, n_samples, level, seed)
-    om_s, rho_s = b.data["sample_omega"], b.data["sample_amplitude"]
-    lo, hi = _interval(rho_s, level, np.asarray(b.solutions)[:, 0], lam)
+    curves = {
+        "post": (b.data["sample_omega"], b.data["sample_amplitude"]),
+        "jack": rf.cached(
+            ("frc-jackknife", *branch_key(b)),
+            lambda: frc_sample_curves(rf, b, jackknife_samples(rf)),
+        ),
+    }
+    rho_mean = np.asarray(b.solutions)[:, 0]
+    lo, hi = _interval(curves["post"][1], curves["jack"][1], level, rho_mean, lam)
     b.intervals["amplitude"] = (lo[:, None], hi[:, None])
     window = max(len(b) // 10, 3)
-    rho_mean = np.asarray(b.solutions)[:, 0]
     for sp in b.special_points:
-        if sp.kind == "fold":
-            om, rho = _sample_extrema(om_s, rho_s, np.asarray(b.params), int(sp.index), window)
-        elif sp.kind == "peak":
-            i = int(np.argmax(rho_mean))
-            rho, om = _sample_extrema(rho_s, om_s, rho_mean, i, len(b))
-        else:
+        if sp.kind not in ("fold", "peak"):
             continue
-        sp.intervals["param"] = tuple(float(v) for v in _interval(om, level, sp.param, lam))
-        a_lo, a_hi = _interval(rho, level, float(np.ravel(sp.data["amplitude"])[0]), lam)
+        om, rho = {}, {}
+        for k, (om_s, rho_s) in curves.items():
+            if sp.kind == "fold":
+                om[k], rho[k] = _sample_extrema(
+                    om_s, rho_s, np.asarray(b.params), int(sp.index), window
+                )
+            else:
+                i = int(np.argmax(rho_mean))
+                rho[k], om[k] = _sample_extrema(rho_s, om_s, rho_mean, i, len(b))
+        iv = _interval(om["post"], om["jack"], level, sp.param, lam)
+        sp.intervals["param"] = tuple(float(v) for v in iv)
+        amp = float(np.ravel(sp.data["amplitude"])[0])
+        a_lo, a_hi = _interval(rho["post"], rho["jack"], level, amp, lam)
         sp.intervals["amplitude"] = ([float(a_lo)], [float(a_hi)])
 
 
@@ -143,12 +228,15 @@ def _scurve_intervals(
 ) -> None:
     add_scurve_band(rf, b, n_samples, level, seed)
     f_s = b.data["sample_forcing"]
-    b.intervals["forcing"] = _interval(f_s, level, np.asarray(b.params, float), lam)
+    f_j = scurve_sample_forcing(rf, b, jackknife_samples(rf))
+    f_mean = np.asarray(b.params, float)
+    b.intervals["forcing"] = _interval(f_s, f_j, level, f_mean, lam)
     window = max(len(b) // 10, 3)
     for sp in b.special_points:
         if sp.kind == "fold":
-            f, _ = _sample_extrema(f_s, f_s, np.asarray(b.params, float), int(sp.index), window)
-            sp.intervals["param"] = tuple(float(v) for v in _interval(f, level, sp.param, lam))
+            f, _ = _sample_extrema(f_s, f_s, f_mean, int(sp.index), window)
+            fj, _ = _sample_extrema(f_j, f_j, f_mean, int(sp.index), window)
+            sp.intervals["param"] = tuple(float(v) for v in _interval(f, fj, level, sp.param, lam))
 
 
 def add_intervals(
@@ -166,5 +254,8 @@ def add_intervals(
             _scurve_intervals(rf, b, level, n_samples, seed, lam)
         else:
             add_backbone_band(rf, b, n_samples, level, seed)
-            b.intervals["omega"] = _interval(b.data["sample_omega"], level, b.data["omega"], lam)
+            om_j = backbone_sample_omega(rf, b, jackknife_samples(rf))
+            b.intervals["omega"] = _interval(
+                b.data["sample_omega"], om_j, level, b.data["omega"], lam
+            )
     diagram.level = level
