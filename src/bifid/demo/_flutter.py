@@ -76,7 +76,7 @@ class FlutterDemoSettings:
         return {
             "truth": truth,
             "campaign": campaign,
-            "model": dict(d["model"]),
+            "model": {**d["model"], "uncertainty": d["level"] is not None},
             "mechanistic": mech,
         }
 
@@ -99,9 +99,7 @@ def run_flutter_demo(
     keys = {"truth": settings_key(st["truth"])}
     # the campaign uses the truth only for its noise levels (branch amplitudes over the range)
     keys["campaign"] = settings_key({**st["campaign"], "truth_range": cfg.truth_range})
-    keys["model"] = settings_key(
-        {**st["model"], "uncertainty": cfg.level is not None, "campaign": keys["campaign"]}
-    )
+    keys["model"] = settings_key({**st["model"], "campaign": keys["campaign"]})
     keys["mechanistic"] = settings_key({**st["mechanistic"], "campaign": keys["campaign"]})
     timings: dict[str, float] = {}
     stages = [
@@ -146,7 +144,7 @@ def run_flutter_demo(
             cfg.model,
             data,
             {"demo": "flutter", **st["model"]},
-            fit_options={"uncertainty": cfg.level is not None},
+            fit_options={"uncertainty": st["model"]["uncertainty"]},
         )
 
         # 3b. mechanistic identification of the same data (thesis ch. 4)
