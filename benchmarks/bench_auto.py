@@ -18,8 +18,12 @@ printed special points:
   (orbit branches are cut where AUTO stopped: a parameter value, a period, or its step
   budget); branch points are only flagged by bifid (candidates), and AUTO's branch points
   are checked against those candidates;
-* the periods of the orbits AUTO prints are compared with bifid's orbit branch at the same
-  parameter (or the parameter at the same period, where the branch is nearly vertical).
+* the periods of the orbits AUTO prints are compared with bifid's orbit through AUTO's
+  point: the nearest orbit of the branch (saved with ``--out``) Newton-corrected at AUTO's
+  parameter (``bifid.continuation.truth.correct_orbit``), and at AUTO's period with the
+  parameter free; Δ is the smaller of the period mismatch of the one and the parameter
+  mismatch of the other (the second decides where the branch is steep in the period,
+  near a homoclinic orbit).
 
 Run ``python benchmarks/bench_auto.py`` (or ``make bench``); writes the "auto" section of
 BENCHMARKS.md. ``--demos ab lrz`` runs a subset; ``--no-write`` only prints.
@@ -34,6 +38,7 @@ import io
 import json
 import math
 import sys
+import tempfile
 import time
 from pathlib import Path
 
@@ -81,7 +86,9 @@ def run_cli(args: list[str]) -> tuple[int, dict | None, str, float]:
     return code, json.loads(text) if text else None, err.getvalue(), dt
 
 
-def continue_args(run: dict, system: str, orbits: bool = True) -> list[str]:
+def continue_args(
+    run: dict, system: str, orbits: bool = True, out: Path | None = None
+) -> list[str]:
     a, b = run["range"]
     args = [
         "continue",
@@ -99,7 +106,66 @@ def continue_args(run: dict, system: str, orbits: bool = True) -> list[str]:
         args += ["--set", f"{k}={v!r}"]
     if run["x0"] is not None:
         args += ["--x0", ",".join(repr(float(v)) for v in run["x0"])]
+    if out is not None:
+        args += ["--out", str(out), "--force"]
     return args
+
+
+def attach_orbits(data: dict, path: Path) -> None:
+    """Attach to each JSON orbit the orbit itself (``--out``: every orbit sampled over one
+    period, in the order of the JSON's ``orbits``) as ``data["orbits"][i]["samples"]``."""
+    from bifid.data import lco_records, load_dataset
+
+    if not path.exists():
+        return
+    recs = lco_records(load_dataset(path))
+    orbits = data.get("orbits", [])
+    if len(recs) != len(orbits):
+        return
+    for o, r in zip(orbits, recs, strict=True):
+        if abs(r.param - o["param"]) <= 1e-12 * max(1.0, abs(o["param"])):
+            o["samples"] = np.asarray(r.signals, dtype=float)
+
+
+def corrected(system, run: dict, orbit: dict, param: float, period: float) -> dict:
+    """bifid's orbit through AUTO's printed point ``(param, period)``, Newton-corrected
+    from the nearest orbit of the branch on that orbit's mesh: at AUTO's parameter (its
+    period) and at AUTO's period (its parameter, where the branch is steep in the period)."""
+    import jax.numpy as jnp
+
+    from bifid.continuation import (
+        correct,
+        fourier_differentiation_matrix,
+        orbit_problem,
+        resample_orbit,
+    )
+    from bifid.continuation.truth import correct_orbit
+    from bifid.errors import BifidError
+
+    out: dict = {}
+    if "samples" not in orbit:
+        return out
+    M = max(64, int(orbit.get("n_mesh") or 64))
+    pv = system.param_vector(run["set"])
+    try:
+        _, T = correct_orbit(
+            system, run["param"], param, orbit["samples"], orbit["period"], p=pv, n_mesh=M
+        )
+        out["period"] = T
+    except BifidError:
+        pass
+    n = system.n_states
+    V = resample_orbit(orbit["samples"], M)
+    D = fourier_differentiation_matrix(M)
+    idx = system.index(run["param"])
+    args = {"p": pv, "idx": jnp.asarray(idx), "dref": jnp.asarray((D @ V).ravel())}
+    y0 = np.concatenate([V.ravel(), [period, orbit["param"]]])
+    e = np.zeros_like(y0)
+    e[M * n] = 1.0
+    y, ok, _, _ = correct(orbit_problem(system.field, M, n), y0, e, period, args, tol=1e-11)
+    if ok:
+        out["param"] = float(y[-1])
+    return out
 
 
 # ------------------------------------------------------------------------ comparison
@@ -222,7 +288,34 @@ def curve_delta(orbits: list[dict], param: float, period: float) -> float | None
     return min(cands) if cands else None
 
 
-def compare_orbits(demo: str, run: dict, data: dict, hopf_branch: dict[float, int]) -> tuple:
+def orbit_delta(system, run: dict, inside: list[dict], param: float, period: float) -> tuple:
+    """Distance of AUTO's orbit ``(param, period)`` from bifid's branch in units of the
+    last printed digit, and bifid's period there: from the orbits Newton-corrected
+    through AUTO's point (:func:`corrected`), the smaller of the period mismatch at
+    ``param`` and the parameter mismatch at ``period``; where neither converges, the
+    branch interpolated (:func:`curve_delta`, marked). None: the branch does not reach it."""
+    if len(inside) < 2 or not min(o["period"] for o in inside) <= period <= max(
+        o["period"] for o in inside
+    ):
+        return None, None, ""
+    ps = [o["param"] for o in inside]
+    if not min(ps) - 1e-9 * max(1.0, abs(param)) <= param <= max(ps) + 1e-9 * max(1.0, abs(param)):
+        return None, None, ""  # the branch does not reach AUTO's parameter
+    got = corrected(system, run, inside[along(inside, param, period)], param, period)
+    cands = []
+    if "period" in got:
+        cands.append((abs(got["period"] - period) / unit(period), got["period"]))
+    if "param" in got:
+        cands.append((abs(got["param"] - param) / unit(param), None))
+    if cands:
+        d, value = min(cands, key=lambda c: c[0])
+        return d, value if value is not None else got.get("period"), ""
+    return curve_delta(inside, param, period), None, " (interpolated)"
+
+
+def compare_orbits(
+    demo: str, run: dict, data: dict, hopf_branch: dict[float, int], system=None
+) -> tuple:
     """Rows for the orbit runs of one equilibrium run, and the extra points found."""
     rows, extra, notes = [], [], []
     for orb in run["orbits"]:
@@ -253,7 +346,7 @@ def compare_orbits(demo: str, run: dict, data: dict, hopf_branch: dict[float, in
         end = next((e for e in data["ends"] if e["branch"] == b), {})
         top = max((o.get("period") or 0.0) for o in orbits)
         for p, t in orb["points"]:
-            d = curve_delta(inside, p, t)
+            d, value, how = orbit_delta(system, run, inside, p, t)
             beyond = d is None and end.get("reason") == "homoclinic" and t > top
             rows.append(
                 {
@@ -261,10 +354,11 @@ def compare_orbits(demo: str, run: dict, data: dict, hopf_branch: dict[float, in
                     "run": label,
                     "kind": "orbit period",
                     "auto": t,
-                    "bifid": None,
+                    "bifid": value,
                     "delta": d,
                     "exact": None,
                     "at": p,
+                    "how": how,
                     "ok": None if beyond else d is not None and d <= AGREE_UNITS,
                 }
             )
@@ -376,12 +470,21 @@ def independent(demo: str, run: dict) -> dict:
 
 
 def run_demo(name: str, orbits: bool = True) -> dict:
+    from bifid.systems import get_system
+
     module = load_demo(name)
+    system = get_system(name)
     rows, extra, notes, timing = [], [], [], []
     for run in module.AUTO_RUNS:
         if not orbits:
             run = {**run, "orbits": []}
-        code, data, err, dt = run_cli(continue_args(run, name, orbits))
+        with tempfile.TemporaryDirectory() as tmp:
+            path = Path(tmp) / "orbits.nc"
+            code, data, err, dt = run_cli(
+                continue_args(run, name, orbits, path if run["orbits"] else None)
+            )
+            if data is not None and run["orbits"]:
+                attach_orbits(data, path)
         timing.append(dt)
         log(f"{name} {run['label']}: exit {code} in {dt:.1f} s")
         if data is None or "hopf" not in data:  # no diagram (an error, or interrupted)
@@ -401,7 +504,7 @@ def run_demo(name: str, orbits: bool = True) -> dict:
         hopf_branch = {}
         for o in data.get("orbits", []):
             hopf_branch.setdefault(o["branch"], o["param"])
-        r, e, n = compare_orbits(name, run, data, {v: k for k, v in hopf_branch.items()})
+        r, e, n = compare_orbits(name, run, data, {v: k for k, v in hopf_branch.items()}, system)
         rows, extra, notes = rows + r, extra + e, notes + n
         n_cand = sum(1 for c in data.get("candidates", []) if c["kind"] != "branch_point")
         if n_cand:
@@ -432,7 +535,7 @@ def fmt(v, digits: int = 9) -> str:
     return str(v)
 
 
-def render(results: list[dict], orbits: bool = True) -> str:
+def render(results: list[dict], orbits: bool = True, demos: list[str] | None = None) -> str:
     lines = [
         "## AUTO-07p demo suite (`bench_auto.py`)",
         "",
@@ -444,6 +547,9 @@ def render(results: list[dict], orbits: bool = True) -> str:
         "where AUTO's last digit is off); independent: a closed form (`ab`, `lrz`) or the",
         "dense eigenvalue scan of the property test; extra: located points of a kind AUTO",
         "looked for that AUTO does not list, within the part of the branch AUTO computed.",
+        "Orbit periods: bifid's orbit Newton-corrected through AUTO's point from the nearest",
+        "orbit of the branch, at AUTO's parameter (bifid's period shown) and at AUTO's period",
+        "(parameter free); Δ the smaller mismatch, in units of AUTO's last digit.",
         "" if orbits else "\nEquilibria only (`--no-orbits`): the orbit runs were not made.\n",
         "| demo | runs | AUTO points | agree | disagree / missing | beyond a homoclinic end "
         "| extra | wall [s] |",
@@ -466,7 +572,7 @@ def render(results: list[dict], orbits: bool = True) -> str:
         for x in r["rows"]:
             at = f" at {x['at']:g}" if "at" in x else ""
             delta = "—" if x["delta"] is None else f"{x['delta']:+.2f}"
-            mark = (
+            mark = x.get("how", "") + (
                 "" if x["ok"] else " (beyond bifid's homoclinic end)" if x["ok"] is None else " ✗"
             )
             lines.append(
@@ -479,6 +585,20 @@ def render(results: list[dict], orbits: bool = True) -> str:
     notes = [(r["name"], n) for r in results for n in r["notes"]]
     if notes:
         lines += ["", "Notes:"] + [f"- {d}: {n}" for d, n in notes]
+    total = sum(r["time"] for r in results)
+    demos = list(demos or [r["name"] for r in results])
+    subset = "" if tuple(demos) == DEMOS else " --demos " + " ".join(demos)
+    flag = "" if orbits else " --no-orbits"
+    lines += [
+        "",
+        f"Command: `python benchmarks/bench_auto.py{subset}{flag}` (one run; wall time of "
+        f"the `bifid continue` runs {total:.0f} s, on 2 cores shared with other jobs).",
+    ]
+    if len(results) < len(demos):
+        lines.append(
+            f"The run was interrupted after {len(results)} of its {len(demos)} demos "
+            f"({', '.join(r['name'] for r in results)})."
+        )
     return "\n".join(lines) + "\n"
 
 
@@ -490,12 +610,14 @@ def main(argv: list[str] | None = None) -> int:
     a = ap.parse_args(argv)
     import bifid  # noqa: F401  (float64)
 
-    results = [run_demo(name, not a.no_orbits) for name in a.demos]
-    md = render(results, not a.no_orbits)
+    results = []
+    for name in a.demos:
+        results.append(run_demo(name, not a.no_orbits))
+        md = render(results, not a.no_orbits, a.demos)
+        if not a.no_write:  # after every demo: an interrupted run leaves what it did
+            write_section("auto", md)
+            log(f"wrote the 'auto' section of BENCHMARKS.md ({len(results)} demos)")
     print(md)
-    if not a.no_write:
-        write_section("auto", md)
-        log("wrote the 'auto' section of BENCHMARKS.md")
     bad = sum(1 for r in results for x in r["rows"] if x["ok"] is False) + sum(
         len(r["extra"]) for r in results
     )

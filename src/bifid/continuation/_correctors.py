@@ -37,6 +37,7 @@ from __future__ import annotations
 
 import abc
 import functools
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from typing import Any
@@ -46,6 +47,8 @@ import jax.numpy as jnp
 import numpy as np
 import scipy.linalg
 from threadpoolctl import threadpool_limits
+
+from bifid.continuation._krylov import gmres
 
 Array = jnp.ndarray
 Residual = Callable[[Array, Any], Array]
@@ -84,6 +87,19 @@ class ZeroProblem:
 #: problems with at least this many unknowns reuse factorisations (below it a
 #: factorisation costs less than compiling the extra residual and Jacobian-vector product)
 REUSE_MIN_UNKNOWNS = 400
+#: a corrector built with ``krylov=True`` solves its Newton systems by GMRES (with a stored
+#: factorisation as the preconditioner) from this many unknowns on (below it the dense
+#: factorisation is cheap)
+KRYLOV_MIN_UNKNOWNS = 1000
+#: relative residual of a Newton step solved by GMRES (Newton's iterates to far below its
+#: tolerance)
+KRYLOV_RTOL = 1e-10
+#: relative residual of a tangent solved by GMRES
+KRYLOV_TANGENT_RTOL = 1e-12
+#: largest Krylov dimension; a system not solved within it is factorised afresh
+KRYLOV_MAX_ITER = 40
+#: a solve that needs more GMRES iterations than this refactorises at the next solve
+KRYLOV_REFRESH = 12
 #: iterative-refinement sweeps of a tangent solved with a reused factorisation
 REFINE_STEPS = 4
 #: a reused factorisation's tangent is accepted when the refinement's last update is
@@ -218,14 +234,25 @@ class NewtonCorrector(AbstractCorrector):
     docstring); the iteration counts and results are Newton's.
     """
 
-    def __init__(self, problem: ZeroProblem, *, tol: float = 1e-10, max_iter: int = 10) -> None:
+    def __init__(
+        self,
+        problem: ZeroProblem,
+        *,
+        tol: float = 1e-10,
+        max_iter: int = 10,
+        krylov: bool = False,
+    ) -> None:
         self.problem = problem
         self.tol = float(tol)
         self.max_iter = int(max_iter)
+        self.krylov = bool(krylov)
         self._both = _evaluator(problem)
         self._residual = _residual_evaluator(problem)
         self._jvp = _jvp_evaluator(problem)
         self._last: _Factorisation | None = None
+        self._stale = False
+        #: work done: factorisations, Krylov solves and their iterations
+        self.stats = {"factorisations": 0, "krylov_solves": 0, "krylov_iterations": 0}
 
     def evaluate(self, y: np.ndarray, args: Any) -> tuple[np.ndarray, np.ndarray]:
         """``G(y)`` and ``G_y(y)`` as NumPy arrays."""
@@ -238,7 +265,72 @@ class NewtonCorrector(AbstractCorrector):
             return np.asarray(self._both(y, args)[0])
         return np.asarray(self._residual(y, args))
 
+    def _uses_krylov(self, y: np.ndarray) -> bool:
+        return self.krylov and np.shape(y)[0] >= KRYLOV_MIN_UNKNOWNS
+
+    def _factor(self, y: np.ndarray, row: np.ndarray, args: Any) -> _Factorisation | None:
+        """Factorise ``[G_y(y); row^T]`` (None when the Jacobian is not finite)."""
+        _, Jm = self.evaluate(y, args)
+        if not np.all(np.isfinite(Jm)):
+            return None
+        self.stats["factorisations"] += 1
+        return _factor(Jm, row, y, args)
+
+    def _krylov_solve(
+        self, y: np.ndarray, row: np.ndarray, b: np.ndarray, args: Any, rtol: float
+    ) -> np.ndarray | None:
+        """``[G_y(y); row^T] x = b`` by GMRES preconditioned with the stored factorisation
+        (None when there is none, or GMRES does not reach ``rtol``); a solve that needed
+        more than :data:`KRYLOV_REFRESH` iterations marks the factorisation stale."""
+        f = self._last
+        if f is None or self._stale or f.y.shape != y.shape:
+            return None
+
+        def matvec(v: np.ndarray) -> np.ndarray:
+            return np.concatenate([np.asarray(self._jvp(y, v, args)), [row @ v]])
+
+        out = gmres(matvec, f.solve, b, rtol=rtol, max_iter=KRYLOV_MAX_ITER)
+        self.stats["krylov_solves"] += 1
+        self.stats["krylov_iterations"] += out.iterations
+        if not out.converged:
+            self._stale = True
+            return None
+        if out.iterations > KRYLOV_REFRESH:
+            self._stale = True
+        return out.x
+
+    def _correct_krylov(self, y_pred: np.ndarray, row: np.ndarray, c: float, args: Any):
+        """Newton with the linear systems solved by preconditioned GMRES (module
+        :mod:`~bifid.continuation._krylov`); the Jacobian is formed and factorised only
+        when the stored factorisation no longer makes a good preconditioner."""
+        y = np.asarray(y_pred, dtype=float).copy()
+        err = np.inf
+        it = 0
+        while it < self.max_iter:
+            G = self.residual(y, args)
+            r = np.concatenate([G, [row @ y - float(c)]])
+            if not np.all(np.isfinite(r)):
+                return Correction(y, False, it, np.inf)
+            dy = self._krylov_solve(y, row, -r, args, KRYLOV_RTOL)
+            if dy is None:
+                f = self._factor(y, row, args)
+                if f is None:
+                    return Correction(y, False, it, np.inf)
+                self._last, self._stale = f, False
+                dy = f.solve(-r)
+            if not np.all(np.isfinite(dy)):
+                return Correction(y, False, it, np.inf)
+            y = y + dy
+            it += 1
+            err = float(np.max(np.abs(dy))) / (1.0 + float(np.max(np.abs(y))))
+            if err <= self.tol:
+                break
+        res = float(np.max(np.abs(self.residual(y, args))))
+        return Correction(y, bool(err <= self.tol and np.isfinite(res)), it, res)
+
     def correct(self, y_pred: np.ndarray, row: np.ndarray, c: float, args: Any) -> Correction:
+        if self._uses_krylov(y_pred):
+            return self._correct_krylov(y_pred, np.asarray(row, dtype=float), c, args)
         y = np.asarray(y_pred, dtype=float).copy()
         row = np.asarray(row, dtype=float)
         large = y.shape[0] >= REUSE_MIN_UNKNOWNS
@@ -254,6 +346,7 @@ class NewtonCorrector(AbstractCorrector):
                 if not np.all(np.isfinite(Jm)):
                     return Correction(y, False, it, np.inf)
                 fact = _factor(Jm, row, y, args)
+                self.stats["factorisations"] += 1
             r = np.concatenate([G, [row @ y - float(c)]])
             if not np.all(np.isfinite(r)):
                 return Correction(y, False, it, np.inf)
@@ -286,16 +379,39 @@ class NewtonCorrector(AbstractCorrector):
         row = w * np.asarray(t_prev, dtype=float)
         rhs = np.zeros(y.shape[0])
         rhs[-1] = 1.0
-        found = self._refined_tangent(y, row, rhs, args)
+        if self._uses_krylov(y):
+            found = self._krylov_tangent(y, row, rhs, args)
+        else:
+            found = self._refined_tangent(y, row, rhs, args)
         if found is None:
             _, Jm = self.evaluate(y, args)
             fact = _factor(Jm, row, y, args)
+            self.stats["factorisations"] += 1
             if y.shape[0] >= REUSE_MIN_UNKNOWNS:
-                self._last = fact
+                self._last, self._stale = fact, False
             found = fact.solve(rhs), fact.det_sign
         t, sign = found
         t = t / np.sqrt(t @ (w * t))
         return t, sign
+
+    def _krylov_tangent(
+        self, y: np.ndarray, row: np.ndarray, rhs: np.ndarray, args: Any
+    ) -> tuple[np.ndarray, float] | None:
+        """The tangent system by preconditioned GMRES; the determinant's sign is that of
+        the stored factorisation where it was taken within the last correction of ``y``
+        (as for :meth:`_refined_tangent`), else unknown (NaN)."""
+        t = self._krylov_solve(y, row, rhs, args, KRYLOV_TANGENT_RTOL)
+        if t is None:
+            return None
+        f = self._last
+        if float(np.max(np.abs(f.y - y))) > 1e-4 * (1.0 + float(np.max(np.abs(y)))):
+            return t, math.nan
+        e = np.zeros_like(rhs)
+        e[-1] = 1.0
+        denom = 1.0 + float((row - f.row) @ f.solve(e))
+        if not (np.isfinite(denom) and abs(denom) > 1e-12):
+            return t, math.nan
+        return t, f.det_sign * float(np.sign(denom))
 
     def _refined_tangent(
         self, y: np.ndarray, row: np.ndarray, rhs: np.ndarray, args: Any

@@ -204,6 +204,7 @@ class AdaptiveRun:
     message: str = ""
     stop_reason: str | None = None
     args: list[Any] = field(default_factory=list)
+    work: dict[str, int] = field(default_factory=dict)
 
 
 def run_adaptive(
@@ -226,10 +227,15 @@ def run_adaptive(
     reason (an end status such as ``"hopf"``); ``monitor(y, y_new, M)`` is the driver's
     step control (a factor < 1 rejects the step).
     """
+    runner = _Runner(stage_of, policy, options, n_states, stop, monitor, progress)
     with threadpool_limits(1, user_api="blas"):
-        return _Runner(stage_of, policy, options, n_states, stop, monitor, progress).run(
+        out = runner.run(
             np.asarray(y0, dtype=float), np.asarray(t0, dtype=float), M0 or policy.n_mesh
         )
+    for c in runner.correctors:
+        for k, v in c.stats.items():
+            out.work[k] = out.work.get(k, 0) + v
+    return out
 
 
 class _Runner:
@@ -238,11 +244,15 @@ class _Runner:
         self.stop, self.monitor, self.progress = stop, monitor, progress
         self.M = 0
         self.driver: Continuation | None = None
+        self.krylov = True
+        self.correctors: list[NewtonCorrector] = []
 
     def _driver(self, M: int) -> Continuation:
         stage = self.stage_of(M)
         o = self.options
-        corrector = NewtonCorrector(stage.problem, tol=o.newton_tol, max_iter=o.newton_max_iter)
+        corrector = NewtonCorrector(
+            stage.problem, tol=o.newton_tol, max_iter=o.newton_max_iter, krylov=self.krylov
+        )
         mon = None
         if self.monitor is not None:
 
@@ -250,6 +260,7 @@ class _Runner:
                 return self.monitor(y, y_new, M)
 
         self.stage = stage
+        self.correctors.append(corrector)
         return Continuation(
             corrector,
             stage.problem.param_index,

@@ -18,6 +18,7 @@ Branch ends are events, recorded in ``Branch.status`` (``END_REASONS``):
 
 from __future__ import annotations
 
+import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
 
@@ -47,6 +48,19 @@ HOPF_END_FRACTION = 0.02
 HOMOCLINIC_PERIOD_FACTOR = 50.0
 #: relative change of the parameter over the window below which it has settled
 HOMOCLINIC_SETTLED = 1e-8
+#: the periods examined by :func:`homoclinic_convergence`: the top part of the branch's
+#: period range, from the largest period divided by this
+HOMOCLINIC_SPAN = 1.2
+#: the decay of ``|d lambda / dT|`` over that part, at least (a factor of e^2.3 = 10)
+HOMOCLINIC_DECAY = math.log(10.0)
+#: the parameter's remaining change, extrapolated, at most this (relative to its range or
+#: its size, the larger) to end a running branch ...
+HOMOCLINIC_REMAINING = 1e-8
+#: ... and to name the reason of a branch that could not go on (its corrector failed, the
+#: mesh limit or the step budget was reached)
+HOMOCLINIC_REMAINING_AT_END = 1e-5
+#: differences of the parameter below this (relative to max(1, |lambda|)) are rounding
+HOMOCLINIC_NOISE = 1e-11
 #: points examined for the signature of a homoclinic approach
 _HOMOCLINIC_WINDOW = 6
 #: a step from an orbit larger than this fraction of the branch's largest to one smaller
@@ -103,12 +117,19 @@ class OrbitEnds:
         return 1.0
 
 
-def homoclinic_signature(params: np.ndarray, periods: np.ndarray) -> bool:
+def homoclinic_signature(
+    params: np.ndarray, periods: np.ndarray, remaining: float = HOMOCLINIC_REMAINING
+) -> bool:
     """The last points of a branch look like an approach to a homoclinic orbit: over
     the last :data:`_HOMOCLINIC_WINDOW` points the period grew monotonically by at least
     2 % to at least twice the branch's smallest, while the parameter settled to
     :data:`HOMOCLINIC_SETTLED` of its range (at a fold the parameter turns instead, and
-    its change over steps that change the period by 2 % is far larger)."""
+    its change over steps that change the period by 2 % is far larger); or the parameter
+    converges geometrically in the period (:func:`homoclinic_convergence`, with
+    ``remaining``)."""
+    params, periods = np.asarray(params, dtype=float), np.asarray(periods, dtype=float)
+    if homoclinic_convergence(params, periods, remaining):
+        return True
     k = _HOMOCLINIC_WINDOW
     if len(periods) < k + 1:
         return False
@@ -117,6 +138,49 @@ def homoclinic_signature(params: np.ndarray, periods: np.ndarray) -> bool:
         return False
     scale = max(float(np.ptp(params)), abs(float(lam[-1])), 1e-300)
     return bool(abs(lam[-1] - lam[0]) <= HOMOCLINIC_SETTLED * scale)
+
+
+def homoclinic_convergence(
+    params: np.ndarray, periods: np.ndarray, remaining: float = HOMOCLINIC_REMAINING
+) -> bool:
+    """The parameter converges geometrically as the period grows, as it does towards a
+    homoclinic orbit of a saddle (``|lambda - lambda_h| ~ C e^{-T/tau}``, so
+    ``|d lambda / dT| = |lambda - lambda_h| / tau``).
+
+    On the points where the period reached a new maximum, over the periods from
+    ``T_max / HOMOCLINIC_SPAN`` to ``T_max`` (at least 6 points, ``T_max`` at least twice
+    the branch's smallest period): the parameter moves monotonically, ``log |d lambda /
+    dT|`` falls linearly in ``T`` (least squares, every residual within a factor of 3,
+    ``HOMOCLINIC_DECAY`` over the span), and the remaining change extrapolated to
+    ``T = inf`` is below ``remaining`` times the parameter's range (or size). A fold (the
+    parameter turns) or a branch that merely steepens (no geometric decay) fails it.
+    Differences of the parameter at the level of rounding (``HOMOCLINIC_NOISE``) are left
+    out.
+    """
+    if len(periods) < 8:
+        return False
+    record = [0]
+    for i in range(1, len(periods)):
+        if periods[i] > periods[record[-1]]:
+            record.append(i)
+    T, lam = periods[record], params[record]
+    keep = T >= T[-1] / HOMOCLINIC_SPAN
+    T, lam = T[keep], lam[keep]
+    if len(T) < 6 or T[-1] < 2.0 * float(np.min(periods)):
+        return False
+    dlam, dT = np.diff(lam), np.diff(T)
+    scale = max(float(np.ptp(params)), float(np.max(np.abs(lam))), 1e-300)
+    real = np.abs(dlam) > HOMOCLINIC_NOISE * max(1.0, float(np.max(np.abs(lam))))
+    if np.count_nonzero(real) < 5 or not (np.all(dlam[real] > 0) or np.all(dlam[real] < 0)):
+        return False
+    mid = 0.5 * (T[1:] + T[:-1])[real]
+    logs = np.log(np.abs(dlam[real]) / dT[real])
+    b, a = np.polyfit(mid, logs, 1)
+    if not (b < 0 and -b * (mid[-1] - mid[0]) >= HOMOCLINIC_DECAY):
+        return False
+    if np.max(np.abs(logs - (a + b * mid))) > math.log(3.0):
+        return False
+    return bool(math.exp(a + b * T[-1]) / -b <= remaining * scale)
 
 
 def orbit_branch(
@@ -152,7 +216,8 @@ def orbit_branch(
         params_ = np.array([y[m * n + 1] for y, m in zip(run.ys, run.meshes, strict=True)])
         periods_ = np.array([y[m * n] for y, m in zip(run.ys, run.meshes, strict=True)])
         if run.stop_reason == "homoclinic" or (
-            status in ("unresolved", "steps", "failed") and homoclinic_signature(params_, periods_)
+            status in ("unresolved", "steps", "failed")
+            and homoclinic_signature(params_, periods_, HOMOCLINIC_REMAINING_AT_END)
         ):
             k = int(np.argmax(periods_))
             status = "homoclinic"
@@ -193,6 +258,7 @@ def orbit_branch(
             "start_kind": start.kind,
             "max_mesh": policy.max_mesh,
             "resolution_tol": policy.tol,
+            "work": dict(run.work),
         }
     )
     return Branch(
