@@ -26,6 +26,7 @@ speed (Fourier collocation from the nearest orbit of the continued branch,
 from __future__ import annotations
 
 import argparse
+import itertools
 import json
 import os
 import resource
@@ -349,7 +350,7 @@ def bistable(f2: float, f3: float) -> tuple[float, float, list]:
     )
 
 
-def variants(tmp: Path) -> list[str]:
+def variants(tmp: Path, keep: Path | None = None) -> list[str]:
     md = [
         "### Flutter variants: other pitch stiffness, 6 speeds in each bistable range",
         "",
@@ -368,7 +369,7 @@ def variants(tmp: Path) -> list[str]:
         lo, hopf, secondary = bistable(f2, f3)
         w = hopf - lo
         values = np.linspace(lo + 0.05 * w, hopf - 0.05 * w, 6)
-        out = tmp / f"var_{f2}_{f3}.nc"
+        out = (keep or tmp) / f"var_{f2}_{f3}.nc"
         cmd = [
             "flutter",
             "--protocol",
@@ -384,6 +385,8 @@ def variants(tmp: Path) -> list[str]:
         ]
         d, wall, _cpu, _rc = cli(cmd)
         compare(d["points"], {"ka2": KA2 * f2, "ka3": KA3 * f3}, lo, hopf)
+        if keep is not None:
+            (keep / f"var_{f2}_{f3}.json").write_text(json.dumps(d, indent=1, default=str))
         total += 12
         measured += len(d["points"])
         unstable = [
@@ -411,12 +414,39 @@ def variants(tmp: Path) -> list[str]:
     return md
 
 
+def _with_part(part: list[str]) -> str:
+    """The "cbc" section of BENCHMARKS.md with one part (its ``### `` subsection) replaced
+    by ``part``, the other parts as they were."""
+    start, end = "<!-- cbc:start -->", "<!-- cbc:end -->"
+    text = (ROOT / "BENCHMARKS.md").read_text()
+    if start not in text or end not in text:
+        return "\n".join(part)
+    body = text.split(start, 1)[1].split(end, 1)[0].strip().splitlines()
+    body = [line for line in body if not line.startswith("_Run ")]
+    cut = [i for i, line in enumerate(body) if line.startswith("### ")] + [len(body)]
+    head, parts = body[: cut[0]], [body[a:b] for a, b in itertools.pairwise(cut)]
+    title = part[0].split(":")[0].split(" at ")[0]
+    parts = [part if p[0].split(":")[0].split(" at ")[0] == title else p for p in parts]
+    if not any(p is part for p in parts):
+        parts.append(part)
+    return "\n".join([*head, *(line for p in parts for line in p)])
+
+
 def main() -> None:
     ap = argparse.ArgumentParser()
     ap.add_argument("--only", choices=("diagram", "continuation", "variants"))
+    ap.add_argument(
+        "--print-only", action="store_true", help="print the tables, leave BENCHMARKS.md"
+    )
+    ap.add_argument("--keep", help="variants: keep each campaign's file and JSON in this folder")
     args = ap.parse_args()
     load = "{:.1f} / {:.1f} / {:.1f}".format(*os.getloadavg())
-    parts = {"diagram": diagram, "continuation": continuation, "variants": variants}
+    keep = None if args.keep is None else Path(args.keep).resolve()
+    parts = {
+        "diagram": diagram,
+        "continuation": continuation,
+        "variants": lambda tmp: variants(tmp, keep),
+    }
     md = [
         "## cbc — PP-CBC campaigns on the flutter model (virtual rig, 5 kHz)",
         "",
@@ -428,13 +458,19 @@ def main() -> None:
         for name, fn in parts.items():
             if args.only in (None, name):
                 md += fn(Path(d))
+                stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+                md += [f"_This part ran until {stamp}; load average then {_load()}._", ""]
                 if args.only is None and name != "variants":
                     # what is measured so far, should a later part not finish
                     note = "_The later parts of this benchmark did not finish in this run._"
                     write_section("cbc", "\n".join([*md, "", note]))
     print("\n".join(md))
+    if args.print_only:
+        return
     if args.only is None:
         write_section("cbc", "\n".join(md))
+    else:  # this part replaced, the others kept (each part says when it ran)
+        write_section("cbc", _with_part(md[4:]))
 
 
 if __name__ == "__main__":

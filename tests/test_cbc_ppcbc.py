@@ -14,7 +14,15 @@ import warnings
 import numpy as np
 import pytest
 
-from bifid.cbc import PPCBCOptions, VirtualRig, ppcbc_campaign, ppcbc_scan
+from bifid.cbc import (
+    AbstractRig,
+    Measurement,
+    PolarTarget,
+    PPCBCOptions,
+    VirtualRig,
+    ppcbc_campaign,
+    ppcbc_scan,
+)
 from bifid.data import load_dataset
 from bifid.errors import ConvergenceWarning
 from bifid.systems import get_system
@@ -131,3 +139,64 @@ def test_destabilising_controller_is_reported_not_recorded(hopf):
     assert pts == []
     assert fails
     assert any(issubclass(w.category, ConvergenceWarning) for w in caught)
+
+
+class _OffCentreRig(AbstractRig):
+    """A rig that draws the unit circle round the origin for the bootstrap's ellipse
+    and, for any polar target, a circle beside the origin (a controller that lost lock:
+    the response does not go round the target's centre)."""
+
+    output_names = ("u1", "u2")
+    sample_rate = 100.0
+
+    def __init__(self) -> None:
+        self.t, self.target, self.params = 0.0, None, {"mu": 0.0}
+
+    @property
+    def time(self) -> float:
+        return self.t
+
+    def get_parameter(self, name: str) -> float:
+        return self.params[name]
+
+    def set_parameter(self, name: str, value: float) -> None:
+        self.params[name] = value
+
+    def set_forcing(self, amplitude, frequency=None, phase=0.0) -> None:
+        pass
+
+    def set_controller(self, controller, target=None) -> None:
+        self.target = target
+
+    def run(self, duration: float) -> Measurement:
+        n = max(1, round(duration * self.sample_rate))
+        t = self.t + np.arange(n) / self.sample_rate
+        self.t = float(t[-1]) + 1.0 / self.sample_rate
+        shift = 3.0 if isinstance(self.target, PolarTarget) else 0.0
+        y = np.column_stack([shift + np.cos(t), np.sin(t)])
+        dy = np.column_stack([-np.sin(t), np.cos(t)])
+        zero = np.zeros(n)
+        return Measurement(
+            time=t,
+            outputs=y,
+            output_names=self.output_names,
+            derivatives=dy,
+            control=zero,
+            target=zero,
+            force=zero,
+            phase=np.full(n, np.nan),
+            sample_rate=self.sample_rate,
+        )
+
+
+def test_lost_lock_is_a_failure_not_a_target():
+    """Check a response that does not go round the polar target's centre fails the scan
+    with its reason instead of being read as an orbit (its fit in φ is ill-conditioned)."""
+    opts = PPCBCOptions(target="polar", **OPTS)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        pts, fails = ppcbc_scan(_OffCentreRig(), "mu", 0.0, [0.5, 1.0, 1.5], opts)
+    assert pts == []
+    assert len(fails) == 1
+    assert "lost lock" in fails[0].reason
+    assert "0.0 turns" in fails[0].reason

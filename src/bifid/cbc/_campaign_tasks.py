@@ -40,12 +40,40 @@ def run_tasks(camp: Campaign) -> None:
 
 
 # ------------------------------------------------------------------------------ helpers
-def _with_gains(opts: Any, gains: list[float] | None) -> Any:
-    return opts if gains is None else replace(opts, kp=float(gains[0]), kd=float(gains[1]))
+def _with_gains(opts: Any, gains: list[float] | dict[str, Any] | None) -> Any:
+    """``opts`` with the controller saved in the cursor: ``[kp, kd]`` or option fields."""
+    if gains is None:
+        return opts
+    if isinstance(gains, dict):
+        return replace(
+            opts, **{k: tuple(v) if isinstance(v, list) else v for k, v in gains.items()}
+        )
+    return replace(opts, kp=float(gains[0]), kd=float(gains[1]))
 
 
 def _raised(opts: Any) -> Any:
     return replace(opts, kp=GAIN_FACTOR * opts.kp, kd=GAIN_FACTOR * opts.kd)
+
+
+def _other_controller(opts: PPCBCOptions) -> dict[str, Any]:
+    """The controller a failed PP-CBC scan is repeated with, as option fields.
+
+    Where the protocol's plane is not ``(x1, ẋ1)`` and the system has bootstrap gains
+    (they hold its rig in that plane: they start every oscillation), the polar target in
+    ``(x1, ẋ1)`` with those gains: a controller in another plane acts on other modes,
+    e.g. on the period-doubling instability of a large flutter LCO that the heave-pitch
+    controller leaves unstable. Otherwise the gains raised (the controller lost lock)."""
+    derivative = f"{opts.x1}_dot"
+    if opts.bootstrap_gains is not None and opts.x2 != derivative:
+        kp, kd = (float(g) for g in opts.bootstrap_gains)
+        return {
+            "x2": derivative,
+            "kp": kp,
+            "kd": kd,
+            "filter_hz": None,
+            "centre": [float(opts.centre[0]), 0.0],
+        }
+    return {"kp": GAIN_FACTOR * opts.kp, "kd": GAIN_FACTOR * opts.kd}
 
 
 def _driver_options(camp: Campaign, newton_max: int, ds_max: float) -> ContinuationOptions:
@@ -156,18 +184,21 @@ def _scan_once(
 
 
 def _scan_value(camp: Campaign, value: float, branch: int):
-    """Scan at ``value``; a scan with failures is repeated once with raised gains."""
+    """Scan at ``value``; a scan with failures is repeated once with another controller
+    (:func:`_other_controller`), which the following values keep when it did better."""
     opts = _ppcbc_options(camp)
     known: list[tuple[float, float]] = []
     res = _scan_once(camp, value, opts, branch, known)
     if res.failures:
-        raised = _raised(opts)
-        again = _scan_once(camp, value, raised, branch, known)
+        other = _other_controller(opts)
+        again = _scan_once(camp, value, _with_gains(opts, other), branch, known)
         if len(again.failures) < len(res.failures):
-            camp.cursor["gains"] = [raised.kp, raised.kd]
+            camp.cursor["gains"] = {**(_saved_controller(camp)), **other}
+            new = _with_gains(opts, other)
             camp.warnings.append(
-                f"PP-CBC at {camp.spec.param}={value:g}: controller gains raised to kp = "
-                f"{raised.kp:g}, kd = {raised.kd:g} (the scan failed with the others)"
+                f"PP-CBC at {camp.spec.param}={value:g}: controller changed to kp = "
+                f"{new.kp:g}, kd = {new.kd:g} on ({new.x1}, {new.x2}) (the scan failed "
+                "with the other)"
             )
             again.points = res.points + again.points
             again.found = res.found + again.found
@@ -183,6 +214,13 @@ def _scan_value(camp: Campaign, value: float, branch: int):
             "(no LCO in the range of target amplitudes?)",
         )
     return res
+
+
+def _saved_controller(camp: Campaign) -> dict[str, Any]:
+    g = camp.cursor.get("gains")
+    if isinstance(g, dict):
+        return dict(g)
+    return {} if g is None else {"kp": float(g[0]), "kd": float(g[1])}
 
 
 def _scan_values(camp: Campaign) -> None:
@@ -321,7 +359,7 @@ def _ppcbc_branch(camp: Campaign, start: dict[str, Any], saved: dict[str, Any] |
             new = _raised(br.problem.opts)
             br.problem.opts = new
             br.problem.family = br.problem.family.with_options(new)
-            camp.cursor["gains"] = [new.kp, new.kd]
+            camp.cursor["gains"] = {**_saved_controller(camp), "kp": new.kp, "kd": new.kd}
         # wherever the failed attempts left the rig (at rest after a trip, or far from the
         # branch): start the oscillation again, then hold the last target
         camp.rig.set_parameter(spec.param, float(br.state.y[-1]))

@@ -226,12 +226,42 @@ class TargetFamily:
     ) -> Response:
         """Switch the controller on with ``target``, settle and measure (whole periods).
 
-        Raises :class:`~bifid.cbc._measured.RigTripped` when the rig's safety gate fires."""
+        Raises :class:`~bifid.cbc._measured.RigTripped` when the rig's safety gate fires,
+        :class:`~bifid.errors.ConvergenceError` when a polar target's response does not go
+        round the target's centre (the controller lost lock)."""
         period = 2.0 * math.pi / omega
         rig.set_controller(self.o.controller, target)
         run(rig, (self.o.settle_periods if settle is None else settle) * period)
         m = run(rig, self.o.measure_periods * period + 2.0 / rig.sample_rate)
-        return self.analyse(m, omega)
+        r = self.analyse(m, omega)
+        if self.polar:
+            self._check_lock(r)
+        return r
+
+    def _check_lock(self, r: Response) -> None:
+        """Raise :class:`~bifid.errors.ConvergenceError` unless the response goes round
+        the target's centre: its angle ``φ`` turns once per period (at least half as many
+        turns as periods) and ``r(φ)`` is positive (a mean radius larger than the size of
+        its harmonics). A response that wanders between orbits (the controller lost lock)
+        gives a curve that does not enclose the centre, whose fit in ``φ`` is
+        ill-conditioned: a target built from it would be absurd."""
+        x1, x2 = r.m.signal(self.o.x1), r.m.signal(self.o.x2)
+        d1, d2 = x1 - self.origin[0], x2 - self.origin[1]
+        phi = np.unwrap(
+            np.arctan2(
+                self.inv[1, 0] * d1 + self.inv[1, 1] * d2,
+                self.inv[0, 0] * d1 + self.inv[0, 1] * d2,
+            )
+        )
+        turns = abs(float(phi[-1] - phi[0])) / (2.0 * math.pi) if phi.size else 0.0
+        periods = r.omega * x1.shape[0] / r.m.sample_rate / (2.0 * math.pi)
+        size = float(np.linalg.norm(r.shape))
+        if not (np.all(np.isfinite(r.vector)) and size < r.a0 and turns >= 0.5 * periods):
+            raise ConvergenceError(
+                "the controller lost lock: the response does not go round the target's "
+                f"centre ({turns:.1f} turns in {periods:.1f} periods, mean radius "
+                f"{r.a0:.3g}, harmonics {size:.3g})"
+            )
 
     # ------------------------------------------------------------------ frames
     def reframed(self, m: Measurement, omega: float) -> TargetFamily:
@@ -313,7 +343,10 @@ def bootstrap(
     # a target too small against the measurement noise can fail to lock (the angle of a
     # noisy (x1, ẋ1) is noise): try twice and four times the amplitude (up to a_max)
     tries = [a for a in (a_start, 2.0 * a_start, 4.0 * a_start) if a_max is None or a <= a_max]
-    for a_try in tries or [a_start]:
+    tries = tries or [a_start]
+    k = 0
+    while k < len(tries):
+        a_try, k = tries[k], k + 1
         vec = np.array([a_try, aspect0, centre[0], centre[1]])
         for _ in range(4):
             r = fam.hold(rig, fam.target(vec), omega)
@@ -327,6 +360,14 @@ def bootstrap(
                 vec = np.concatenate([[a_try], r.vector[1:]])
         if r.a0 > 0.1 * a_try:
             break
+        # the rig rests away from the centre (at another equilibrium, e.g. a buckled
+        # state of a structure with softening stiffness, where the last orbit left it):
+        # outside the ellipse the radial error damps, so once more with an ellipse round
+        # the centre that encloses the rig (inside, the radial error self-excites)
+        off = abs(float(np.mean(r.m.signal(boot.x1))) - centre[0])
+        big = 1.5 * off
+        if k == len(tries) == 3 and off > a_try and (a_max is None or big <= a_max):
+            tries.append(big)
     assert r is not None
     if not r.a0 > 0.1 * a_try:
         raise ConvergenceError(

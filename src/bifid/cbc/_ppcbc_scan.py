@@ -134,8 +134,10 @@ def _illinois(
     """Root of ``Ξ`` between evaluations ``a`` and ``b`` (opposite signs).
 
     Converged when the error estimate of ``A*`` is below ``rel_tol · A*`` (plus what the
-    noise floor of ``Ξ`` allows): the error estimate is the larger of ``|Ξ| / |Ξ'|`` (with
-    the secant slope ``Ξ'`` of the bracket) and the next secant step. With a strong
+    noise floor of ``Ξ`` allows) and ``|Ξ|`` itself is (a sign change of ``Ξ`` can be a
+    jump between attractors, not a zero): the error estimate is the larger of
+    ``|Ξ| / |Ξ'|`` (with the secant slope ``Ξ'`` of the bracket) and the next secant
+    step. With a strong
     controller the response follows the target and ``Ξ`` is flat near its zero, so a
     small ``|Ξ|`` alone does not bound the error of ``A*``.
     """
@@ -159,9 +161,12 @@ def _illinois(
             allowed = rel_tol * c.a_star + c.resp.floor / slope
         else:
             err, allowed = math.inf, 0.0
-        if c.picard_ok and err < best_err:
+        # Ξ itself small too: where the response jumps from one attractor to another Ξ
+        # changes sign without a zero, and the bracket closes on the jump (slope → ∞)
+        small = abs(c.xi) <= rel_tol * c.a_star + c.resp.floor
+        if c.picard_ok and small and err < best_err:
             best, best_err = c, err
-        if c.picard_ok and err <= allowed:
+        if c.picard_ok and small and err <= allowed:
             return c
         if stagnant:
             break
