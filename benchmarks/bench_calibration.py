@@ -436,12 +436,23 @@ def save_results(method: str, table: dict, run: dict) -> None:
     path.write_text(json.dumps(results, indent=1))
 
 
-def report_mechanistic(reps: int) -> None:
-    run = run_mechanistic(reps)
+def write_report(
+    method: str, run: dict, reps: int, section: str, intro: list[str], title: str, extra=()
+) -> None:
+    """Coverage table, reliability figure, results file and the BENCHMARKS.md section of one
+    method's run (``intro`` lines before the table, ``extra`` lines after it)."""
     table = coverage_table(run["rows"])
-    reliability_figure("mechanistic", table, FIG / "calibration_mechanistic.png")
-    save_results("mechanistic", table, run)
-    md = [
+    figure = f"calibration_{method}.png"
+    reliability_figure(method, table, FIG / figure)
+    save_results(method, table, run)
+    md = [*intro, "", *markdown(title, table, run, reps), "", *extra]
+    md += [f"![reliability](docs/figures/{figure})"]
+    write_section(section, "\n".join(md))
+    log(f"{method} done in {run['time_s'] / 60:.1f} min")
+
+
+def report_mechanistic(reps: int) -> None:
+    intro = [
         "## Calibration of intervals",
         "",
         "Nominal vs empirical coverage over seeded replications with known truth "
@@ -450,13 +461,9 @@ def report_mechanistic(reps: int) -> None:
         "",
         "Scope: the `hopf` system (eq. 5.2) with free `mu0, a2, q5`; the flutter model's "
         "whole-diagram fits take minutes each and are not part of this benchmark.",
-        "",
-        *markdown("Mechanistic (delta method on the Gauss–Newton covariance)", table, run, reps),
-        "",
-        "![reliability](docs/figures/calibration_mechanistic.png)",
     ]
-    write_section("calibration", "\n".join(md))
-    log(f"mechanistic done in {run['time_s'] / 60:.1f} min")
+    title = "Mechanistic (delta method on the Gauss–Newton covariance)"
+    write_report("mechanistic", run_mechanistic(reps), reps, "calibration", intro, title)
 
 
 def undefined_intervals(rows: list[dict], level: float = 0.95) -> int:
@@ -468,36 +475,28 @@ def undefined_intervals(rows: list[dict], level: float = 0.95) -> int:
 
 def report_kernel(reps: int, resume: bool = False) -> None:
     run = run_kernel(reps, resume)
-    table = coverage_table(run["rows"])
-    reliability_figure("kernel", table, FIG / "calibration_kernel.png")
-    save_results("kernel", table, run)
-    md = [
+    intro = [
         "## Calibration of intervals: kernel model of forced systems",
         "",
         "FRC folds and peak of the averaged Duffing oscillator at an untrained forcing level "
         "(`benchmarks/bench_calibration.py`, cases in its docstring; method in "
         "`docs/uncertainty.md`). Scope: the averaged (reduced) oscillator, whose FRC is "
         "exact in closed form; the Duffing ODE and Shaw–Pierre are not part of this benchmark.",
-        "",
-        *markdown("Kernel (posterior samples and leave-one-out jackknife)", table, run, reps),
-        "",
+    ]
+    extra = [
         f"Undefined intervals (no posterior sample has the fold or peak: `null`), counted "
-        f"as not covering: {undefined_intervals(run['rows'])} of {table['n_trials']} at 95 %. "
+        f"as not covering: {undefined_intervals(run['rows'])} of "
+        f"{coverage_table(run['rows'])['n_trials']} at 95 %. "
         "A failed fit is one whose mean FRC at the untrained forcing does not have the two "
         "folds of the true one (spurious folds where the GP of `a` follows the noise).",
         "",
-        "![reliability](docs/figures/calibration_kernel.png)",
     ]
-    write_section("calibration-kernel", "\n".join(md))
-    log(f"kernel done in {run['time_s'] / 60:.1f} min")
+    title = "Kernel (posterior samples and leave-one-out jackknife)"
+    write_report("kernel", run, reps, "calibration-kernel", intro, title, extra)
 
 
 def report_hybrid(reps: int) -> None:
-    run = run_hybrid(reps)
-    table = coverage_table(run["rows"])
-    reliability_figure("hybrid", table, FIG / "calibration_hybrid.png")
-    save_results("hybrid", table, run)
-    md = [
+    intro = [
         "## Calibration of intervals: hybrid model",
         "",
         "Hopf point (speed and frequency) and cycle fold (speed and amplitude) of the `hopf` "
@@ -509,13 +508,9 @@ def report_hybrid(reps: int) -> None:
         + "`) keep a replication under a minute. The intervals' calibration factor "
         "c = 0.85 was read off a first run on other seeds (0–17 per case); these "
         f"replications use seeds offset by {HYBRID_SEED_OFFSET}.",
-        "",
-        *markdown("Hybrid (jackknife over orbits and ensemble over seeds)", table, run, reps),
-        "",
-        "![reliability](docs/figures/calibration_hybrid.png)",
     ]
-    write_section("calibration-hybrid", "\n".join(md))
-    log(f"hybrid done in {run['time_s'] / 60:.1f} min")
+    title = "Hybrid (jackknife over orbits and ensemble over seeds)"
+    write_report("hybrid", run_hybrid(reps), reps, "calibration-hybrid", intro, title)
 
 
 def main() -> None:
