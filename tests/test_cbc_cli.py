@@ -11,10 +11,10 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from bifid.cli import _load_commands, app
+from bifid.cli import app, load_commands
 from bifid.data import load_dataset
 
-_load_commands()
+load_commands()
 RUNNER = CliRunner()
 
 # The coarse grid puts the secant estimate of the unstable LCO (r = 0.3357) near the

@@ -82,9 +82,12 @@ def test_points_are_responses_of_the_uncontrolled_system(duffing_scurve):
 
 
 def test_force_update_matches_eq_3_6_with_exact_derivative():
-    """Check one force update equals eq. 3.6 when the derivative comes from the state."""
+    """Check the control force of the rig's PD controller equals eq. 3.6 when the
+    derivative comes from the state: its first harmonic, projected here on whole periods of
+    the generator phase, against ``kp d + kd Ω`` applied to the target's minus the
+    response's first harmonic."""
     from bifid.cbc import FourierTarget
-    from bifid.cbc._forced_measure import measure
+    from bifid.signal import fourier_project, whole_periods
 
     s = get_system("duffing")
     rig = VirtualRig(s, sample_rate=100.0, derivative="state")
@@ -93,12 +96,16 @@ def test_force_update_matches_eq_3_6_with_exact_derivative():
     rig.set_forcing(0.01, Om, 0.0)
     pstar = np.array([0.0, 0.1, 0.0, 0.0, 0.02, 0.0, 0.0])
     rig.set_controller(opts.controller, FourierTarget(pstar))
-    r = measure(rig, opts, Om, 30)
-    d = pstar - r.p
+    rig.run(30 * 2 * np.pi / Om)  # settle
+    m = rig.run(10 * 2 * np.pi / Om + 0.02)
+    m = m.tail(whole_periods(len(m), Om, m.sample_rate))
+    c = fourier_project(np.column_stack([m.signal("q"), m.control]), m.phase, q)
+    p, u = c[:, 0], c[:, 1]
+    d = pstar - p
     A_hat = opts.kp * d[1] + Om * opts.kd * d[q + 1]  # eq. 3.6, cos part of u
     B_hat = opts.kp * d[q + 1] - Om * opts.kd * d[1]  # sin part
-    assert r.u[1] == pytest.approx(A_hat, rel=1e-3, abs=1e-9)
-    assert r.u[q + 1] == pytest.approx(B_hat, rel=1e-3, abs=1e-9)
+    assert u[1] == pytest.approx(A_hat, rel=1e-3, abs=1e-9)
+    assert u[q + 1] == pytest.approx(B_hat, rel=1e-3, abs=1e-9)
 
 
 # ------------------------------------------------------------------ measurement noise

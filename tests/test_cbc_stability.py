@@ -8,9 +8,14 @@ import math
 import numpy as np
 import pytest
 
-from bifid.cbc import EllipticTarget, PDController, VirtualRig
-from bifid.cbc._defaults import defaults_for
-from bifid.cbc._stability import controlled_floquet, switch_off_test
+from bifid.cbc import (
+    EllipticTarget,
+    PDController,
+    VirtualRig,
+    controlled_floquet,
+    defaults_for,
+    switch_off_test,
+)
 from bifid.systems import get_system
 
 R0 = math.sqrt(0.1)

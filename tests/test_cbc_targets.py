@@ -9,7 +9,6 @@ import numpy as np
 import pytest
 
 from bifid.cbc import EllipticTarget, FourierTarget, PDController, PolarTarget
-from bifid.cbc._controllers import harmonic_series
 from bifid.errors import BifidInputError
 from bifid.signal import (
     estimate_frequency,
@@ -18,18 +17,6 @@ from bifid.signal import (
     polar_project,
     whole_periods,
 )
-
-
-def test_harmonic_series_and_derivative():
-    """Check s(φ) and ds/dφ against direct evaluation."""
-    c = np.array([0.3, 1.0, -0.2, 0.05, 0.4, 0.1, -0.3])  # q = 3
-    for phi in np.linspace(-3, 3, 7):
-        v, d = harmonic_series(jnp.asarray(c), jnp.cos(phi), jnp.sin(phi))
-        k = np.arange(1, 4)
-        ref = c[0] + c[1:4] @ np.cos(k * phi) + c[4:] @ np.sin(k * phi)
-        dref = (-c[1:4] * k) @ np.sin(k * phi) + (c[4:] * k) @ np.cos(k * phi)
-        assert float(v) == pytest.approx(ref, abs=1e-14)
-        assert float(d) == pytest.approx(dref, abs=1e-13)
 
 
 def test_fourier_target_eq_3_3():

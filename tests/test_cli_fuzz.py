@@ -138,10 +138,9 @@ def _commands() -> dict[str, Any]:
     """Every leaf command of the app, by its path ('fit hopf', 'continue', ...)."""
     import typer
 
-    from bifid.cli import _load_commands
-    from bifid.cli._common import app
+    from bifid.cli import app, load_commands
 
-    _load_commands()
+    load_commands()
     out: dict[str, Any] = {}
 
     def walk(group, prefix: tuple[str, ...]) -> None:

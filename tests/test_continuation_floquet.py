@@ -10,10 +10,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from bifid.continuation import floquet
-from bifid.continuation._floquet import autonomous_rhs
-from bifid.systems import System, get_system
-from bifid.systems._base import Parameter
+from bifid.continuation import autonomous_rhs, floquet
+from bifid.systems import Parameter, System, get_system
 
 CASES = [
     (-0.05, 0.2, True),

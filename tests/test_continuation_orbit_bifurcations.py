@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 from bifid.continuation import ContinuationOptions, periodic_orbits
-from bifid.systems import System
-from bifid.systems._base import Parameter
+from bifid.systems import Parameter, System
 
 PD_AT, TORUS_AT, BETA = 0.0, 0.3, 0.37
 

@@ -9,8 +9,7 @@ import numpy as np
 import pytest
 
 from bifid.continuation import ContinuationOptions, continue_from_hopf, equilibria, hopf_orbits
-from bifid.systems import System
-from bifid.systems._base import Parameter
+from bifid.systems import Parameter, System
 
 
 def _two_hopf(x, p):

@@ -13,8 +13,7 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-import bifid.cli._data  # noqa: F401  (registers the command on the app)
-from bifid.cli._common import app
+from bifid.cli import main
 from bifid.data import load_dataset
 
 CSV = """\
@@ -34,7 +33,7 @@ N_TRIED = {"cli argv": 0, "exit 0": 0, "exit 2": 0}
 def run(argv: list[str], capsys: pytest.CaptureFixture[str]) -> tuple[int, str, str]:
     capsys.readouterr()
     try:
-        app(args=argv, prog_name="bifid")
+        main(argv)
         code = 0
     except SystemExit as exc:
         code = int(exc.code or 0)

@@ -9,9 +9,8 @@ import numpy as np
 import pytest
 
 from bifid.cli import main
-from bifid.demo._cache import StageCache, settings_key
-from bifid.demo._flutter import FlutterDemoSettings
-from bifid.demo._flutter_report import _aligned_error
+from bifid.demo import FlutterDemoSettings, StageCache, settings_key
+from bifid.signal import aligned_orbit_error
 
 
 def test_settings_key_is_order_free_and_sensitive():
@@ -62,8 +61,8 @@ def test_aligned_error_is_phase_free_and_exact():
         37,
         axis=0,
     )
-    assert _aligned_error(shifted, truth) < 1e-10  # resampled 64 -> 256 and shifted
-    assert _aligned_error(1.05 * shifted, truth) == pytest.approx(0.05, rel=1e-9)
+    assert aligned_orbit_error(shifted, truth) < 1e-10  # resampled 64 -> 256 and shifted
+    assert aligned_orbit_error(1.05 * shifted, truth) == pytest.approx(0.05, rel=1e-9)
 
 
 @pytest.mark.parametrize(

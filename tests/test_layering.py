@@ -2,7 +2,8 @@
 
 The layers (DESIGN.md): errors → systems → io, signal, simulate → data → continuation →
 cbc → identify → report → demo → cli. A module may import modules of its own layer or of a
-lower one, never of a higher one — at module level or inside a function.
+lower one, never of a higher one — at module level or inside a function. Tests import
+bifid's public modules and names only.
 """
 
 from __future__ import annotations
@@ -138,3 +139,32 @@ def test_no_import_cycles() -> None:
             cycle = visit(m)
             if cycle:
                 pytest.fail("import cycle: " + " -> ".join(cycle))
+
+
+#: white-box tests of numerical kernels that have no public entry point of their own
+#: (GMRES with a stale factorisation, fold measures without SVDs, the homoclinic test);
+#: their public behaviour is tested through the continuation functions elsewhere
+WHITE_BOX = {"test_continuation_krylov.py"}
+
+
+def test_tests_use_the_public_api() -> None:
+    """Check that tests import bifid's public modules and names only (no ``_private``)."""
+    tests = Path(__file__).resolve().parent
+    bad = []
+    for path in sorted(tests.rglob("*.py")):
+        if path.name in WHITE_BOX:
+            continue
+        tree = ast.parse(path.read_text(), filename=str(path))
+        for node in ast.walk(tree):
+            if isinstance(node, ast.Import):
+                names = [(a.name, "") for a in node.names]
+            elif isinstance(node, ast.ImportFrom) and not node.level:
+                names = [(node.module or "", a.name) for a in node.names]
+            else:
+                continue
+            for module, name in names:
+                private = any(p.startswith("_") for p in module.split(".")[1:])
+                if module.split(".")[0] == "bifid" and (private or name.startswith("_")):
+                    where = path.relative_to(tests.parent)
+                    bad.append(f"{where}:{node.lineno} imports {module} {name}".rstrip())
+    assert not bad, "tests importing private modules or names:\n" + "\n".join(bad)

@@ -8,8 +8,7 @@ import numpy as np
 import pytest
 
 from bifid.continuation import continue_from_hopf
-from bifid.systems import System
-from bifid.systems._base import Parameter
+from bifid.systems import Parameter, System
 
 pytestmark = pytest.mark.slow
 

@@ -43,7 +43,8 @@ _COMMAND_MODULES = (
 )
 
 
-def _load_commands() -> None:
+def load_commands() -> None:
+    """Register every sub-command on :data:`app` (``main`` does this before parsing)."""
     for name in _COMMAND_MODULES:
         importlib.import_module(name)
 
@@ -125,7 +126,7 @@ def main(argv: list[str] | None = None) -> None:
     REPORTED.clear()
     try:
         _enable_compilation_cache()
-        _load_commands()
+        load_commands()
         rv = app(args=args, prog_name="bifid", standalone_mode=False)
         code = rv if isinstance(rv, int) else 0
         if code == EXIT_INTERRUPTED and not REPORTED:  # typer's own Ctrl-C handling
@@ -162,4 +163,4 @@ def _flush_stdout() -> None:
             os.dup2(devnull, sys.stdout.fileno())
 
 
-__all__ = ["app", "fit_app", "main"]
+__all__ = ["app", "fit_app", "load_commands", "main"]

@@ -18,7 +18,7 @@ from bifid.continuation._collocation import (
 )
 from bifid.continuation._diagram import Diagram
 from bifid.continuation._equilibria import equilibria, equilibrium_problem
-from bifid.continuation._floquet import floquet, floquet_multipliers, monodromy
+from bifid.continuation._floquet import autonomous_rhs, floquet, floquet_multipliers, monodromy
 from bifid.continuation._forced import forced_problem, frc, scurve
 from bifid.continuation._fourier import fourier_differentiation_matrix, fourier_grid
 from bifid.continuation._hopf import (
@@ -69,6 +69,7 @@ __all__ = [
     "Step",
     "Verdict",
     "ZeroProblem",
+    "autonomous_rhs",
     "backbone",
     "bifurcation_diagram",
     "confirm",

@@ -12,6 +12,14 @@ iterates and its convergence are those of the exact linear solves (Saad & Schult
 right preconditioning keeps the residual GMRES minimises the true one, checked again
 explicitly at the end).
 
+Written here rather than taken from ``scipy.sparse.linalg.gmres`` or ``lineax.GMRES``:
+their stopping test is ``||b - A x|| <= max(rtol ||b||, atol)`` with ``atol`` fixed
+before the solve, while a Newton step on a badly scaled collocation system needs the
+normwise backward-error floor ``FLOOR ||A|| ||x||`` (below which no solver, a direct one
+included, can go), with ``||A||`` and ``||x||`` estimated from the Krylov products as the
+iteration proceeds; and lineax works on JAX operators, while the preconditioner here is
+a SciPy LU applied on the host.
+
 Used by :class:`bifid.continuation._correctors.NewtonCorrector` when it is built with
 ``krylov=True`` (the adaptive orbit runs of ``_mesh``).
 """

@@ -7,10 +7,19 @@
   continuation.
 
 Each writes ``report.html``, PNG figures, the dataset and the model into its directory and
-reuses, on a second run, every stage whose settings did not change.
+reuses, on a second run, every stage whose settings did not change (:class:`StageCache`,
+keyed by :func:`settings_key` of the stage's settings).
 """
 
+from bifid.demo._cache import StageCache, settings_key
 from bifid.demo._flutter import FlutterDemoSettings, run_flutter_demo
 from bifid.demo._forced import ForcedDemoSettings, run_forced_demo
 
-__all__ = ["FlutterDemoSettings", "ForcedDemoSettings", "run_flutter_demo", "run_forced_demo"]
+__all__ = [
+    "FlutterDemoSettings",
+    "ForcedDemoSettings",
+    "StageCache",
+    "run_flutter_demo",
+    "run_forced_demo",
+    "settings_key",
+]

@@ -13,27 +13,12 @@ from bifid.demo._checks import FLUTTER_CHECKS as CHECKS
 from bifid.demo._report_common import check, finish_report
 from bifid.errors import BifidError
 from bifid.report.plots import STABLE, UNSTABLE, save_figure
+from bifid.signal import aligned_orbit_error
 
 __all__ = ["compare", "write_report"]
 
 SIGNALS = ("h", "alpha")
 UNITS = {"h": "m", "alpha": "rad"}
-
-
-def _aligned_error(model_z: np.ndarray, truth_z: np.ndarray) -> float:
-    """Largest relative RMS error over signals of one period, after the best phase shift.
-
-    Both are one period on uniform grids (any sizes): the truth is trigonometrically
-    resampled to the model's grid, then circularly shifted to best match ``h``.
-    """
-    n = model_z.shape[0]
-    c = np.fft.rfft(truth_z, axis=0)
-    k = min(c.shape[0], n // 2 + 1)
-    tz = np.fft.irfft(c[:k], n=n, axis=0) * (n / truth_z.shape[0])
-    best = np.argmax([np.dot(np.roll(tz[:, 0], s), model_z[:, 0]) for s in range(n)])
-    tz = np.roll(tz, best, axis=0)
-    rms = np.sqrt(np.mean(tz**2, axis=0))
-    return float(np.max(np.sqrt(np.mean((model_z - tz) ** 2, axis=0)) / rms))
 
 
 def _diagram_range(truth: dict[str, Any]) -> tuple[float, float]:
@@ -110,7 +95,7 @@ def compare(
             row["amplitude_rel"] = max(abs(row["model"][s] / tp[s] - 1) for s in SIGNALS)
             row["frequency_rel"] = abs(row["model_omega"] / tp["omega"] - 1)
             z = np.column_stack([orb.signal(s) for s in SIGNALS])
-            row["series_rel"] = _aligned_error(z, tarr["test_orbits"][i])
+            row["series_rel"] = aligned_orbit_error(z, tarr["test_orbits"][i])
         except BifidError as exc:  # the model has no such cycle: a failed prediction
             row.update(
                 model=None,

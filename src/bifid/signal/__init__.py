@@ -9,6 +9,7 @@ and of one-period grids — the one place bifid projects, measures and repairs a
 """
 
 from bifid.signal._amplitude import (
+    aligned_orbit_error,
     first_harmonic,
     max_abs,
     periodic_amplitude,
@@ -31,6 +32,7 @@ from bifid.signal._series import (
 )
 
 __all__ = [
+    "aligned_orbit_error",
     "band_noise",
     "coefficient_noise",
     "estimate_frequency",

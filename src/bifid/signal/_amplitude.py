@@ -14,7 +14,14 @@ from bifid.signal._series import (
     whole_periods,
 )
 
-__all__ = ["first_harmonic", "max_abs", "periodic_amplitude", "phase_lag", "spectral_tail"]
+__all__ = [
+    "aligned_orbit_error",
+    "first_harmonic",
+    "max_abs",
+    "periodic_amplitude",
+    "phase_lag",
+    "spectral_tail",
+]
 
 
 def max_abs(values: np.ndarray) -> np.ndarray:
@@ -140,3 +147,29 @@ def phase_lag(x: np.ndarray, force: np.ndarray, omega: float, sample_rate: float
         return float("nan")
     lag = math.atan2(cf.imag, cf.real) - math.atan2(cx.imag, cx.real)
     return float((lag + math.pi / 2) % (2 * math.pi) - math.pi / 2)
+
+
+def aligned_orbit_error(orbit: np.ndarray, reference: np.ndarray) -> float:
+    """Largest relative RMS error over the signals of one period, after the best time shift.
+
+    Parameters
+    ----------
+    orbit, reference : ndarray of shape (n, s) and (m, s)
+        One period of ``s`` signals each, on uniform grids of any sizes.
+
+    Returns
+    -------
+    float
+        ``max_j ||orbit_j - ref_j|| / ||ref_j||`` (RMS norms), where ``ref`` is the reference
+        trigonometrically resampled to the orbit's grid and circularly shifted so that its
+        first signal best matches the orbit's (the phase of a periodic orbit is arbitrary).
+    """
+    orbit, reference = np.asarray(orbit, dtype=float), np.asarray(reference, dtype=float)
+    n = orbit.shape[0]
+    c = np.fft.rfft(reference, axis=0)
+    k = min(c.shape[0], n // 2 + 1)
+    ref = np.fft.irfft(c[:k], n=n, axis=0) * (n / reference.shape[0])
+    best = np.argmax([np.dot(np.roll(ref[:, 0], s), orbit[:, 0]) for s in range(n)])
+    ref = np.roll(ref, best, axis=0)
+    rms = np.sqrt(np.mean(ref**2, axis=0))
+    return float(np.max(np.sqrt(np.mean((orbit - ref) ** 2, axis=0)) / rms))
