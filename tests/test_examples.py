@@ -19,7 +19,7 @@ EXAMPLES = sorted((ROOT / "docs" / "examples").rglob("*.py"))
 
 
 def _is_slow(path: Path) -> bool:
-    return any("bifid-example: slow" in line for line in path.read_text().splitlines()[:15])
+    return any("bifid-example: slow" in line for line in path.read_text().splitlines()[:30])
 
 
 @pytest.mark.parametrize(

@@ -15,6 +15,8 @@ averaging. With measured data, pass the netCDF files of ``bifid cbc`` or ``bifid
 instead.
 """
 
+# bifid-example: slow (the test suite runs its main() in-process)
+
 from __future__ import annotations
 
 import json

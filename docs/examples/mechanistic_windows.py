@@ -9,6 +9,8 @@ Fits (Ia, ca, ch) with ka tied to Ia on windows starting 0.3 s, at the release (
 1 s and 2 s, to the end of the record or over 3 s, and prints them beside Table 4.1.
 """
 
+# bifid-example: slow (eight fits, each window length compiled anew)
+
 from __future__ import annotations
 
 from pathlib import Path
