@@ -38,6 +38,7 @@ from bifid.continuation._mesh import (
     run_adaptive,
 )
 from bifid.continuation._options import ContinuationOptions
+from bifid.continuation._orbit_bifurcations import STABILITY_SOURCES
 from bifid.continuation._orbit_branch import OrbitEnds, orbit_branch
 from bifid.continuation._palc import ZeroProblem, correct
 from bifid.errors import BifidInputError, ConvergenceError
@@ -128,6 +129,7 @@ def hopf_orbits(
     amplitude0: float | None = None,
     progress: Callable[[int, float], None] | None = None,
     resolution_tol: float = 1e-9,
+    stability: str = "integrated",
 ) -> Branch:
     """Continue the branch of periodic orbits born at a Hopf point.
 
@@ -158,6 +160,11 @@ def hopf_orbits(
         Size of the first orbit (default ``options.ds``).
     resolution_tol : float
         Largest spectral tail of a reported orbit.
+    stability : {"integrated", "collocation"}
+        Source of the Floquet multipliers: the variational equation integrated with error
+        control (default; any contraction; compiled once per process), or the eigenvalues
+        of the collocation operator (``_floquet.collocation_floquet``: nothing to compile;
+        smooth orbits resolved on their mesh). Special points are verified either way.
 
     Returns
     -------
@@ -172,6 +179,7 @@ def hopf_orbits(
     """
     if hopf.kind != "hopf" or "eigenvector" not in hopf.data:
         raise BifidInputError("hopf_orbits needs a located Hopf point (kind 'hopf' with data).")
+    _check_stability(stability)
     options = options or ContinuationOptions()
     policy = MeshPolicy.of(n_mesh, max_mesh, resolution_tol, adapt, system.n_states)
     param = hopf.data.get("param_name") or system.default_param
@@ -210,8 +218,9 @@ def hopf_orbits(
     ends = OrbitEnds(
         first_amplitude=_centred_amplitude(y1, M, n), first_period=TWO_PI / omega, n_states=n
     )
+    stage_of = functools.partial(orbit_stage, system, p, idx)
     run = run_adaptive(
-        lambda m: orbit_stage(system, p, idx, m),
+        stage_of,
         y1,
         t0,
         policy,
@@ -227,9 +236,7 @@ def hopf_orbits(
     run.tails.insert(0, 0.0)
     run.args.insert(0, args)
     run.events = [(i + 1, *rest) for i, *rest in run.events]
-    return orbit_branch(
-        system, param, p, run, options, policy, hopf, lambda m: orbit_stage(system, p, idx, m)
-    )
+    return orbit_branch(system, param, p, run, options, policy, hopf, stage_of, stability)
 
 
 def periodic_orbits(
@@ -245,6 +252,7 @@ def periodic_orbits(
     options: ContinuationOptions | None = None,
     progress: Callable[[int, float], None] | None = None,
     resolution_tol: float = 1e-9,
+    stability: str = "integrated",
 ) -> Branch:
     """Continue periodic orbits from an approximate orbit.
 
@@ -257,8 +265,9 @@ def periodic_orbits(
         Approximate orbit on an equispaced grid over one period (resampled to ``n_mesh``).
     period : float
         Approximate period.
-    n_mesh, max_mesh, adapt, resolution_tol
-        The mesh (as in :func:`hopf_orbits`; ``n_mesh`` defaults to ``M0``).
+    n_mesh, max_mesh, adapt, resolution_tol, stability
+        The mesh and the multipliers (as in :func:`hopf_orbits`; ``n_mesh`` defaults to
+        ``M0``).
     options : ContinuationOptions
         ``direction`` sets the initial direction of the parameter.
 
@@ -268,6 +277,7 @@ def periodic_orbits(
         If the initial orbit cannot be corrected at the start parameter.
     """
     options = options or ContinuationOptions(ds=1e-2, ds_max=0.25, ds_min=1e-9)
+    _check_stability(stability)
     idx = system.index(param)
     p = system.param_vector() if p is None else jnp.asarray(p, dtype=jnp.float64)
     orbit = np.asarray(orbit, dtype=float)
@@ -304,8 +314,9 @@ def periodic_orbits(
         n_states=n,
         from_hopf=False,
     )
+    stage_of = functools.partial(orbit_stage, system, p, idx)
     run = run_adaptive(
-        lambda m: orbit_stage(system, p, idx, m),
+        stage_of,
         y0,
         t0,
         policy,
@@ -318,9 +329,15 @@ def periodic_orbits(
     start = SpecialPoint(
         kind="start", param=lam0, index=0, bracket=(lam0, lam0), solution=y0, data={}
     )
-    return orbit_branch(
-        system, param, p, run, options, policy, start, lambda m: orbit_stage(system, p, idx, m)
-    )
+    return orbit_branch(system, param, p, run, options, policy, start, stage_of, stability)
+
+
+def _check_stability(stability: str) -> None:
+    if stability not in STABILITY_SOURCES:
+        raise BifidInputError(
+            f"stability must be one of {', '.join(map(repr, STABILITY_SOURCES))}; "
+            f"got {stability!r}."
+        )
 
 
 def _centred_amplitude(y: np.ndarray, M: int, n: int) -> float:

@@ -104,6 +104,13 @@ def _hopf_kernels(field: Callable):
 
 
 @functools.lru_cache(maxsize=32)
+def _jitted_field(field: Callable) -> Callable:
+    """``field`` compiled once (evaluated eagerly, a model's field dispatches hundreds of
+    small operations: a fraction of a second per call)."""
+    return jax.jit(field)
+
+
+@functools.lru_cache(maxsize=32)
 def multilinear_forms(field: Callable) -> tuple[Callable, Callable]:
     """Jitted multilinear forms of ``field``: ``B(x0, p, u, v) = D²f(x0)[u, v]`` and
     ``C(x0, p, u, v, w) = D³f(x0)[u, v, w]`` (nested forward-mode directional
@@ -172,7 +179,7 @@ def first_lyapunov_coefficient(field: Callable, x: Array, p: Array, omega: float
     if not (math.isfinite(omega) and omega > 0):
         raise ConvergenceError(f"the first Lyapunov coefficient needs omega > 0, got {omega!r}")
     x = jnp.asarray(x)
-    J = np.asarray(jax.jacfwd(field)(x, p))
+    J = np.asarray(_hopf_kernels(field)[0](x, p))
     n = J.shape[0]
     try:
         w, V = np.linalg.eig(J)
@@ -306,8 +313,8 @@ def verify_hopf(point: SpecialPoint, context: Mapping[str, Any]) -> Verdict:
     field = context["field"]
     x = jnp.asarray(point.solution)
     p = jnp.asarray(point.data["p"])
-    f = np.asarray(field(x, p))
-    J = np.asarray(jax.jacfwd(field)(x, p))
+    f = np.asarray(_jitted_field(field)(x, p))
+    J = np.asarray(_hopf_kernels(field)[0](x, p))
     if not (np.all(np.isfinite(f)) and np.all(np.isfinite(J))):
         return Verdict((Check.finite("jacobian", math.inf),))
     eig = np.linalg.eigvals(J)

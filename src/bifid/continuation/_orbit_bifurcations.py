@@ -41,7 +41,7 @@ from typing import Any
 import numpy as np
 
 from bifid.continuation._branch import SpecialPoint
-from bifid.continuation._floquet import Floquet, autonomous_rhs, floquet
+from bifid.continuation._floquet import Floquet, autonomous_rhs, collocation_floquet, floquet
 from bifid.continuation._folds import verify_fold
 from bifid.continuation._mesh import (
     AdaptiveRun,
@@ -67,6 +67,19 @@ COMPLEX_ARG = 1e-6
 BRANCH_RANK_TOL = 1e-7
 #: smallest ``|t_lambda|`` at a verified branch point of cycles (a fold has 0)
 BRANCH_TANGENT_MIN = 1e-3
+#: where the multipliers of autonomous orbits come from, for detection and verification
+#: alike: ``"integrated"`` (the variational equation, error-controlled, :func:`floquet`)
+#: or ``"collocation"`` (the eigenvalues of the collocation operator,
+#: :func:`collocation_floquet`: nothing to compile, for smooth orbits resolved on their mesh)
+STABILITY_SOURCES = ("integrated", "collocation")
+
+
+def collocation_operator(stage: Stage, y: np.ndarray, n: int) -> np.ndarray:
+    """The mesh block ``D_M (x) I - (T / 2 pi) blockdiag(f_x(v_k))`` of the collocation
+    Jacobian at the orbit ``y = [v, T, lambda]`` (:func:`collocation_floquet`)."""
+    Mn = len(y) - 2
+    _, Gy = NewtonCorrector(stage.problem).evaluate(np.asarray(y), stage.args(y, None))
+    return Gy[:Mn, :Mn]
 
 
 @dataclass
@@ -87,6 +100,7 @@ class BracketContext:
     floquet: Floquet
     zero: np.ndarray
     forced_rhs: Callable | None = None
+    stability: str = "integrated"
 
     @property
     def n(self) -> int:
@@ -117,6 +131,11 @@ class BracketContext:
     def multipliers(self, y: np.ndarray, M: int) -> tuple[np.ndarray, np.ndarray]:
         """Non-trivial multipliers and their log-moduli of the orbit ``y`` (mesh ``M``)."""
         n = self.n
+        if self.autonomous and self.stability == "collocation":
+            fl = collocation_floquet([collocation_operator(self.stage_of(M), y, n)], n)
+            if not fl.ok[0]:
+                raise ArithmeticError("the orbit's collocation multipliers are not resolved")
+            return fl.nontrivial(0)
         ps, period = self.params_of(y, M)
         rhs = autonomous_rhs(self.system.field) if self.autonomous else self.forced_rhs
         fl = floquet(

@@ -26,7 +26,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bifid.continuation._branch import Branch, SpecialPoint
-from bifid.continuation._floquet import Floquet, autonomous_rhs, floquet
+from bifid.continuation._floquet import Floquet, autonomous_rhs, collocation_floquet, floquet
 from bifid.continuation._mesh import (
     AdaptiveRun,
     MeshPolicy,
@@ -35,7 +35,11 @@ from bifid.continuation._mesh import (
     run_residuals,
 )
 from bifid.continuation._options import ContinuationOptions
-from bifid.continuation._orbit_bifurcations import BracketContext, find_orbit_special_points
+from bifid.continuation._orbit_bifurcations import (
+    BracketContext,
+    collocation_operator,
+    find_orbit_special_points,
+)
 from bifid.continuation._verify import LOCATION_ERRORS, Findings
 from bifid.signal import max_abs
 from bifid.systems import System
@@ -192,10 +196,12 @@ def orbit_branch(
     policy: MeshPolicy,
     start: SpecialPoint,
     stage_of: Callable[[int], Stage],
+    stability: str = "integrated",
 ) -> Branch:
     """Assemble the :class:`Branch` of an adaptive orbit run (``start`` is the Hopf point
     the branch was born at, or a ``kind="start"`` placeholder; ``stage_of(M)`` the
-    collocation problem on ``M`` points)."""
+    collocation problem on ``M`` points; ``stability`` where the Floquet multipliers come
+    from, :data:`~bifid.continuation._orbit_bifurcations.STABILITY_SOURCES`)."""
     n = system.n_states
     idx = system.index(param)
     status, message = run.status, run.message
@@ -232,7 +238,7 @@ def orbit_branch(
     orbits = ys[:, : M * n].reshape(-1, M, n)
     periods = ys[:, M * n]
     params = ys[:, M * n + 1]
-    fl = _branch_floquet(system, p, idx, run, n)
+    fl = _branch_floquet(system, p, idx, run, n, stage_of, stability)
     amps = np.array([max_abs(o) for o in orbits])
     # per state, about the orbit's mean (as a rig measures it)
     centred_states = np.array([max_abs(o - o.mean(axis=0)) for o in orbits])
@@ -240,7 +246,15 @@ def orbit_branch(
     zero = centred <= 1e-12 * max(1.0, float(np.max(np.abs(orbits))))
     findings = Findings()
     ctx = BracketContext(
-        system=system, param=param, p=p, idx=idx, run=run, stage_of=stage_of, floquet=fl, zero=zero
+        system=system,
+        param=param,
+        p=p,
+        idx=idx,
+        run=run,
+        stage_of=stage_of,
+        floquet=fl,
+        zero=zero,
+        stability=stability,
     )
     find_orbit_special_points(findings, ctx, params)
     label = fl.stable()
@@ -257,6 +271,7 @@ def orbit_branch(
             "start_param": start.param,
             "start_kind": start.kind,
             "max_mesh": policy.max_mesh,
+            "stability": stability,
             "resolution_tol": policy.tol,
             "work": dict(run.work),
         }
@@ -291,7 +306,9 @@ def orbit_branch(
     )
 
 
-def _branch_floquet(system, p, idx, run: AdaptiveRun, n: int) -> Floquet:
+def _branch_floquet(
+    system, p, idx, run: AdaptiveRun, n: int, stage_of: Callable[[int], Stage], stability: str
+) -> Floquet:
     """Multipliers of every orbit, each on its own mesh, in one batch (zero-amplitude
     orbits: NaN)."""
     N = len(run.ys)
@@ -302,12 +319,17 @@ def _branch_floquet(system, p, idx, run: AdaptiveRun, n: int) -> Floquet:
     V = [np.asarray(y[: m * n]).reshape(m, n) for y, m in zip(run.ys, run.meshes, strict=True)]
     rows = [i for i in range(N) if _centred(V[i]) > 0]
     if rows:
-        ps = np.repeat(np.asarray(p)[None, :], len(rows), axis=0)
-        ps[:, idx] = [run.ys[i][run.meshes[i] * n + 1] for i in rows]
-        periods = np.array([run.ys[i][run.meshes[i] * n] for i in rows])
-        fl = floquet(
-            autonomous_rhs(system.field), [V[i] for i in rows], periods, ps, autonomous=True
-        )
+        if stability == "collocation":
+            fl = collocation_floquet(
+                [collocation_operator(stage_of(run.meshes[i]), run.ys[i], n) for i in rows], n
+            )
+        else:
+            ps = np.repeat(np.asarray(p)[None, :], len(rows), axis=0)
+            ps[:, idx] = [run.ys[i][run.meshes[i] * n + 1] for i in rows]
+            periods = np.array([run.ys[i][run.meshes[i] * n] for i in rows])
+            fl = floquet(
+                autonomous_rhs(system.field), [V[i] for i in rows], periods, ps, autonomous=True
+            )
         mults[rows], logm[rows], trivial[rows], ok[rows] = (
             fl.multipliers,
             fl.log_moduli,

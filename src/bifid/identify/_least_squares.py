@@ -112,12 +112,19 @@ _PROBLEMS: dict[int, _Problem] = {}
 _IDS = itertools.count()
 
 
+# JAX runs a callback under ``jax.default_device(<its device>)``, which is part of the key
+# of every jit cache: the JAX functions the residual calls would be traced and compiled a
+# second time inside the solver (seconds each). The callbacks clear it again.
+
+
 def _host_residual(pid: np.ndarray, x: np.ndarray) -> np.ndarray:
-    return _PROBLEMS[int(pid)].r(np.asarray(x))
+    with jax.default_device(None):
+        return _PROBLEMS[int(pid)].r(np.asarray(x))
 
 
 def _host_jacobian(pid: np.ndarray, x: np.ndarray) -> np.ndarray:
-    return _PROBLEMS[int(pid)].J(np.asarray(x))
+    with jax.default_device(None):
+        return _PROBLEMS[int(pid)].J(np.asarray(x))
 
 
 @functools.lru_cache(maxsize=16)

@@ -9,6 +9,7 @@ from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
+from threadpoolctl import threadpool_limits
 
 from bifid.continuation import Branch, ContinuationOptions, hopf_orbits, locate_hopf
 from bifid.errors import ConvergenceWarning
@@ -17,7 +18,24 @@ from bifid.systems import System
 
 TWO_PI = 2.0 * math.pi
 
-__all__ = ["collapse_index", "data_range", "hopf_summary", "model_branch", "orbit_options"]
+__all__ = [
+    "INTERNAL_STABILITY",
+    "collapse_index",
+    "data_range",
+    "hopf_summary",
+    "model_branch",
+    "one_blas_thread",
+    "orbit_options",
+]
+
+#: where the multipliers of the identification's own branches come from (never shown to a
+#: user; see :func:`model_branch`)
+INTERNAL_STABILITY = "collocation"
+
+#: decorator: BLAS on one thread for the duration of the call (the fits factorise many
+#: small dense matrices, which a multi-threaded BLAS slows down many times under load;
+#: set once per call, not per factorisation, whose library scan would cost more)
+one_blas_thread = threadpool_limits.wrap(limits=1, user_api="blas")
 
 
 def orbit_options(lo: float, hi: float, max_steps: int) -> ContinuationOptions:
@@ -62,6 +80,7 @@ def model_branch(
     guess: float | None = None,
     param_range: tuple[float, float] = (-math.inf, math.inf),
     max_steps: int = 400,
+    stability: str = "integrated",
 ) -> Branch:
     """The model's periodic-orbit branch from its Hopf point (:func:`hopf_orbits`).
 
@@ -72,6 +91,12 @@ def model_branch(
     is continued again with at most 0.4 times the step; if it still collapses it is returned
     with a :class:`~bifid.errors.ConvergenceWarning` (its orbits up to the collapse are
     valid).
+
+    ``stability`` is passed to :func:`hopf_orbits`: the identification's own branches
+    (matching measured LCOs, the data homotopy, the stage summaries, the covariance) use
+    ``"collocation"`` — multipliers from the collocation operator, nothing to compile —
+    and every branch a user is shown keeps the default ``"integrated"``. The special
+    points are verified before they are reported with either.
     """
     idx = system.index(param)
     lam0 = float(p[idx]) if guess is None else float(guess)
@@ -89,6 +114,7 @@ def model_branch(
                 options=opts,
                 adapt=False,
                 resolution_tol=0.5,
+                stability=stability,
             )
         k = collapse_index(branch, system.n_states)
         if k is None:

@@ -14,7 +14,6 @@ from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from bifid.continuation import Diagram
 from bifid.errors import BifidInputError, ConvergenceError
@@ -22,7 +21,7 @@ from bifid.identify._base import DiagramQuery, IdentifiedModel, Orbit
 from bifid.identify._intervals import Covariance, warn_extrapolation
 from bifid.identify._persistence import register_model_type
 from bifid.identify._records import LCOData, as_lco_data
-from bifid.identify.mechanistic._branch import hopf_summary
+from bifid.identify.mechanistic._branch import hopf_summary, one_blas_thread
 from bifid.identify.mechanistic._cubic import hopf_point_regression
 from bifid.identify.mechanistic._linear import linear_stage
 from bifid.identify.mechanistic._near_hopf import fit_near_hopf
@@ -36,11 +35,6 @@ from bifid.identify.mechanistic._predict import (
 from bifid.identify.mechanistic._uncertainty import add_intervals, parameter_covariance
 from bifid.identify.mechanistic._whole_diagram import whole_diagram_update
 from bifid.systems import System, get_system
-
-# Every stage factorises small dense matrices (collocation Jacobians of a few hundred
-# unknowns) thousands of times: one BLAS thread is several times faster there than
-# OpenBLAS's pool, whose threads spin against JAX's and any other process's.
-_one_blas_thread = threadpool_limits.wrap(limits=1, user_api="blas")
 
 TWO_PI = 2.0 * math.pi
 STAGES = ("linear", "normal_form", "whole_diagram")
@@ -186,7 +180,7 @@ class MechanisticModel(IdentifiedModel):
         return tuple(self.outputs) if self.outputs else (data.signal_names[0],)
 
     # ------------------------------------------------------------------------------ fit
-    @_one_blas_thread
+    @one_blas_thread
     def fit(self, dataset: Any, *, free_decay: Any = None) -> MechanisticModel:
         """Run the stages on measured limit cycles.
 
@@ -362,7 +356,7 @@ class MechanisticModel(IdentifiedModel):
         }
 
     # -------------------------------------------------------------------------- predict
-    @_one_blas_thread
+    @one_blas_thread
     def _predict_diagram(self, query: DiagramQuery) -> Diagram:
         system = self._system()
         if query.param not in (None, self.param_):
@@ -392,7 +386,7 @@ class MechanisticModel(IdentifiedModel):
             self.data_.param,
         )
 
-    @_one_blas_thread
+    @one_blas_thread
     def _predict_orbit(
         self, value: float, stable: bool, forcing: float | None, omega: float | None, n: int
     ) -> Orbit:
@@ -408,7 +402,7 @@ class MechanisticModel(IdentifiedModel):
             signal_names=tuple(self._system().states),
         )
 
-    @_one_blas_thread
+    @one_blas_thread
     def _predict_amplitude(
         self, values: np.ndarray, stable: bool, forcing: float | None, omega: float | None
     ) -> np.ndarray:
@@ -443,7 +437,7 @@ class MechanisticModel(IdentifiedModel):
             )
         return self._covariance
 
-    @_one_blas_thread
+    @one_blas_thread
     def _add_intervals(self, diagram: Diagram, query: DiagramQuery, level: float) -> None:
         """Delta-method intervals on the predicted diagram (:func:`._uncertainty.add_intervals`),
         with a warning where the prediction leaves the trained parameter range."""

@@ -93,11 +93,10 @@ def _param_jacobian(problem: Any) -> Callable:
 
 @functools.lru_cache(maxsize=16)
 def _full_jacobian(problem: Any) -> Callable:
-    return (
-        jax.jit(problem.jacobian)
-        if problem.jacobian is not None
-        else jax.jit(jax.jacfwd(problem.residual))
-    )
+    """``(y, args) -> G_y`` from the corrector's compiled ``(G, G_y)`` (one program for
+    the corrections and the derivatives)."""
+    evaluate = NewtonCorrector(problem).evaluate
+    return lambda y, args: evaluate(y, args)[1]
 
 
 class OrbitSet:

@@ -13,7 +13,12 @@ import numpy as np
 from bifid.continuation import Diagram, continue_from_hopf
 from bifid.errors import BifidInputError, ConvergenceError
 from bifid.identify._records import LCOData
-from bifid.identify.mechanistic._branch import data_range, model_branch, orbit_options
+from bifid.identify.mechanistic._branch import (
+    INTERNAL_STABILITY,
+    data_range,
+    model_branch,
+    orbit_options,
+)
 from bifid.identify.mechanistic._orbits import OrbitSet
 from bifid.signal import evaluate_fourier, fourier_coefficients
 from bifid.systems import System
@@ -122,7 +127,13 @@ def diagram_error(
     listed in ``missing`` and left out of ``rms_all`` (``n_matched`` says how many entered).
     """
     br = model_branch(
-        system, p, param, n_mesh=n_mesh, guess=hopf_guess, param_range=data_range(data.param)
+        system,
+        p,
+        param,
+        n_mesh=n_mesh,
+        guess=hopf_guess,
+        param_range=data_range(data.param),
+        stability=INTERNAL_STABILITY,
     )
     folds = [sp.param for sp in br.special("cycle_fold")]
     orbits = OrbitSet(system, param, n_mesh, outputs)

@@ -32,7 +32,12 @@ from bifid.continuation import Branch
 from bifid.errors import BifidInputError, ConvergenceError, ConvergenceWarning
 from bifid.identify._least_squares import LeastSquaresResult, least_squares
 from bifid.identify._records import LCOData
-from bifid.identify.mechanistic._branch import data_range, model_branch
+from bifid.identify.mechanistic._branch import (
+    INTERNAL_STABILITY,
+    data_range,
+    model_branch,
+    one_blas_thread,
+)
 from bifid.identify.mechanistic._cubic import nonlinear_only
 from bifid.identify.mechanistic._near_hopf import LogParameters, fit_near_hopf
 from bifid.identify.mechanistic._normal_form import hopf_normal_form
@@ -238,6 +243,7 @@ def _normal_form_start(
                     max(nearest, nf.param_value) + 1e-9,
                 ),
                 max_steps=200,
+                stability=INTERNAL_STABILITY,
             )
         except ConvergenceError:
             br = None
@@ -333,6 +339,7 @@ class _Homotopy:
                         n_mesh=self.n_mesh,
                         guess=hopf_guess,
                         param_range=data_range(data.param),
+                        stability=INTERNAL_STABILITY,
                     )
                     self.branch_time += time.perf_counter() - tb
                 hopf_guess = float(
@@ -374,6 +381,7 @@ class _Homotopy:
         return p
 
 
+@one_blas_thread
 def whole_diagram_update(
     system: System,
     p: np.ndarray,
@@ -470,8 +478,8 @@ def whole_diagram_update(
     amps = orbits.amplitudes()
     res = amps - meas_all
     if not lm.converged:
-        warnings.warn(
-            f"whole-diagram update did not converge: {lm.message}", ConvergenceWarning, stacklevel=2
+        warnings.warn(  # stacklevel 3: the caller, past the one_blas_thread wrapper
+            f"whole-diagram update did not converge: {lm.message}", ConvergenceWarning, stacklevel=3
         )
     return WholeDiagramResult(
         params={nm: float(p[system.index(nm)]) for nm in free},
