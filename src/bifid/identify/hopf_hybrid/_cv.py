@@ -10,6 +10,7 @@ import numpy as np
 from bifid.errors import BifidInputError, ConvergenceWarning
 from bifid.identify._records import LCOData
 from bifid.identify.hopf_hybrid._prepare import measured_amplitude, prepare
+from bifid.identify.hopf_hybrid._state import member
 from bifid.identify.hopf_hybrid._timing import one_blas_thread
 
 __all__ = ["leave_one_out", "refit_without"]
@@ -30,11 +31,17 @@ def _errors(folds: list[dict[str, Any]], names: tuple[str, ...]) -> dict[str, An
     }
 
 
-def refit_without(model: Any, data: LCOData, i: int) -> Any:
+def refit_without(model: Any, data: LCOData, i: int, warm: bool = False) -> Any:
     """A copy of ``model`` trained on ``data`` without record ``i``: one ensemble member,
     the regularisation, stopping, criticality, quintic term and plane selected by
     ``model`` fixed. Record ``i`` keeps its slot with weight 0 (the compiled training loops
-    are reused; only the normalisation constants of the parameter and signals see it).
+    are reused; only the normalisation constants of the parameter and signals see it, so
+    they are those of the full fit).
+
+    With ``warm``, the coordinate map starts from the full fit's reported (primary) member
+    and trains for the same number of iterations: the refit stays in the full fit's basin
+    of the training loss (the jackknife of the intervals, :mod:`._uncertainty`). Without
+    it, a cold start from the model's seed (the cross-validation of :func:`leave_one_out`).
 
     Raises
     ------
@@ -56,7 +63,8 @@ def refit_without(model: Any, data: LCOData, i: int) -> Any:
     fold_model = type(model)(**hyper)
     with one_blas_thread(), warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
-        fold_model._fit(data, np.arange(len(data)) != i)
+        init = member(st.map_params, st.primary) if warm else None
+        fold_model._fit(data, np.arange(len(data)) != i, init)
     return fold_model
 
 

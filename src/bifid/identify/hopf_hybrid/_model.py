@@ -227,9 +227,8 @@ class HopfHybridModel(IdentifiedModel):
             self.timings_["total"] += self.timings_["jackknife"]
         return self
 
-    def _fit(self, data: LCOData, active: np.ndarray) -> HopfHybridModel:
-        """Fit on the records ``active``. Inactive records keep their place in every array
-        (weight 0), so leave-one-out folds reuse the compiled training loops."""
+    def _fit(self, data: LCOData, active: np.ndarray, init: Any = None) -> HopfHybridModel:
+        """Fit on the records ``active`` (others keep their slot, weight 0), map from ``init``."""
         t_start = time.perf_counter()
         if len(data) < 2 or not data.has_records:
             raise BifidInputError(
@@ -277,6 +276,7 @@ class HopfHybridModel(IdentifiedModel):
                 n_members=self.n_ensemble,
                 seed=self.seed,
                 timer=timer,
+                init=init,
             )
             tick("map: ensemble")
             matcher = PhaseMatcher(map_params, setup.map_config, prep, active, data.param_name)
@@ -450,7 +450,7 @@ class HopfHybridModel(IdentifiedModel):
         warning where the prediction leaves the trained parameter range."""
         trained = (float(np.min(self.training_["param"])), float(np.max(self.training_["param"])))
         warn_extrapolation(self.state_.param_name, self._range(query.range), trained, 4)
-        uq.add_intervals(diagram, self.state_, self.replicates_, level)
+        uq.add_intervals(diagram, self, level)
 
     def ensemble_spread(
         self, range: tuple[float, float] | None = None, n_points: int = 50

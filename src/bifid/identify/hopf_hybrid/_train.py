@@ -248,8 +248,10 @@ def train_members(
     n_members: int,
     seed: int,
     timer: StageTimer,
+    init: dict[str, Any] | None = None,
 ) -> tuple[dict[str, Any], int, dict[str, Any]]:
-    """Train ``n_members`` maps from different initialisations with ``(lam, stop)``.
+    """Train ``n_members`` maps from different initialisations with ``(lam, stop)``, or
+    every member from the parameters ``init`` (a warm start).
 
     Returns the stacked parameters of the members that stayed finite, the medoid member and
     the losses.
@@ -265,7 +267,7 @@ def train_members(
     train, evaluate = hm.trainer(cfg), hm.loss_evaluator(cfg)
     members, finals, per_orbit, ok = [], [], [], []
     for s in range(n_members):
-        p0 = hm.initial_params(prep, active, cfg, keys[s], setup.criticality)
+        p0 = init or hm.initial_params(prep, active, cfg, keys[s], setup.criticality)
         p, _, final = _run_map(timer, "map_ensemble", train, p0, data, active, lam, stop)
         losses = np.asarray(evaluate(p, data))
         flat = np.concatenate([np.ravel(x) for x in jax.tree_util.tree_leaves(p)])
