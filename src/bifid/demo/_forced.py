@@ -6,7 +6,7 @@
    forcing update, arclength round the folds) at a few frequencies, with measurement noise,
    each point written to ``dataset.nc`` as it converges.
 3. **model** -- the kernel model of the reduced dynamics on the SSM (thesis ch. 6).
-4. **compare** -- predicted FRCs (with posterior bands) at the test forcing levels: peak
+4. **compare** -- predicted FRCs (with 95 % intervals) at the test forcing levels: peak
    amplitude and fold frequencies; the backbone; figures and ``report.html``.
 """
 

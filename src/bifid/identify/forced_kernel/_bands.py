@@ -42,6 +42,10 @@ __all__ = [
 ]
 
 
+#: residual (relative to the forcing term Γ) below which a sampled FRC point is solved
+FRC_SAMPLE_TOL = 1e-6
+
+
 def _band_meta(level: float, n_samples: int, seed: int, **extra: float) -> dict[str, Any]:
     """``Branch.meta["band"]`` of a posterior-sample band."""
     return {
@@ -79,8 +83,14 @@ def frc_sample_curves(
     rho, psi, om = branch.solutions[:, 0], branch.solutions[:, 1], branch.params
     u, res = frc_samples_at_psi(rf.model, samples, jnp.asarray(gamma), psi, rho, om)
     r_s, o_s, res = np.asarray(u[..., 0]), np.asarray(u[..., 1]), np.asarray(res)
+    # A converged solve leaves the rounding floor of evaluating a sampled function (1e-10
+    # to 1e-9 of the forcing term where the kernel matrices are ill-conditioned); a solve
+    # that failed (diverged, or no solution near the mean's) leaves a far larger one.
     bad = ~(
-        np.isfinite(res) & (res < 1e-8 * max(gamma, 1e-300) + 1e-12) & (r_s > 0) & np.isfinite(o_s)
+        np.isfinite(res)
+        & (res < FRC_SAMPLE_TOL * max(gamma, 1e-300))
+        & (r_s > 0)
+        & np.isfinite(o_s)
     )
     return np.where(bad, np.nan, o_s), np.where(bad, np.nan, r_s)
 
