@@ -523,7 +523,11 @@ def monodromy(
 
 @functools.lru_cache(maxsize=64)
 def autonomous_rhs(field: Callable) -> Callable:
-    """``(x, t, p) -> field(x, p)``, one stable object per field (keeps jit caches warm)."""
+    """The right-hand side ``(x, t, p) -> field(x, p)`` of an autonomous system, in the form
+    :func:`floquet` and :func:`monodromy` take it.
+
+    One object per field (cached), so that repeated calls reuse the compiled integrator.
+    """
 
     def rhs(x, t, p):
         return field(x, p)

@@ -69,8 +69,9 @@ def verify_fold(point: SpecialPoint, context: Mapping[str, Any]) -> Verdict:
 
 
 #: from this many unknowns on the fold criteria come from two LU factorisations and
-#: inverse / power iterations instead of two dense SVDs (minutes on a fine mesh)
-SVD_MAX_UNKNOWNS = 1000
+#: inverse / power iterations instead of two dense SVDs (0.7 s each at 500 unknowns,
+#: minutes on a fine mesh; the LU route takes tens of milliseconds)
+SVD_MAX_UNKNOWNS = 200
 
 
 def _large_fold_measures(Gy: np.ndarray, pi: int) -> tuple[np.ndarray, float, float]:
