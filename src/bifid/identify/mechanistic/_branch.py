@@ -21,6 +21,7 @@ TWO_PI = 2.0 * math.pi
 __all__ = [
     "INTERNAL_STABILITY",
     "collapse_index",
+    "data_branch",
     "data_range",
     "hopf_summary",
     "model_branch",
@@ -51,6 +52,22 @@ def data_range(param: np.ndarray) -> tuple[float, float]:
     span = max(hi - lo, 1e-3 * max(abs(hi), 1.0))
     # generous below: a start model may fold well below the measured range
     return lo - 3.0 * span, hi + 0.5 * span
+
+
+def data_branch(
+    system: System, p: np.ndarray, param: str, measured: np.ndarray, *, n_mesh: int, guess: float
+) -> Branch:
+    """The identification's own orbit branch over the window of the measured LCOs at
+    ``measured`` (:func:`data_range`; multipliers from :data:`INTERNAL_STABILITY`)."""
+    return model_branch(
+        system,
+        p,
+        param,
+        n_mesh=n_mesh,
+        guess=guess,
+        param_range=data_range(measured),
+        stability=INTERNAL_STABILITY,
+    )
 
 
 def collapse_index(branch: Branch, n_states: int) -> int | None:

@@ -14,7 +14,7 @@ from bifid.continuation import Diagram, continue_from_hopf
 from bifid.errors import BifidInputError, ConvergenceError
 from bifid.identify._records import LCOData
 from bifid.identify.mechanistic._branch import (
-    INTERNAL_STABILITY,
+    data_branch,
     data_range,
     model_branch,
     orbit_options,
@@ -126,15 +126,7 @@ def diagram_error(
     LCOs the model has no orbit for (e.g. a stable LCO below the model's cycle fold) are
     listed in ``missing`` and left out of ``rms_all`` (``n_matched`` says how many entered).
     """
-    br = model_branch(
-        system,
-        p,
-        param,
-        n_mesh=n_mesh,
-        guess=hopf_guess,
-        param_range=data_range(data.param),
-        stability=INTERNAL_STABILITY,
-    )
+    br = data_branch(system, p, param, data.param, n_mesh=n_mesh, guess=hopf_guess)
     folds = [sp.param for sp in br.special("cycle_fold")]
     orbits = OrbitSet(system, param, n_mesh, outputs)
     try:

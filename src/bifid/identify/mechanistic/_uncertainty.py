@@ -48,7 +48,7 @@ from bifid.continuation import (
 from bifid.errors import ConvergenceError
 from bifid.identify._intervals import Covariance, gauss_newton_covariance, implicit_sensitivity
 from bifid.identify._records import LCOData
-from bifid.identify.mechanistic._branch import INTERNAL_STABILITY, data_range, model_branch
+from bifid.identify.mechanistic._branch import data_branch
 from bifid.identify.mechanistic._orbits import (
     OrbitSet,
     _full_jacobian,
@@ -97,15 +97,7 @@ def parameter_covariance(
             if src == nm and p[system.index(src)] != 0:
                 dirs[i, system.index(dep)] = p[system.index(dep)] / p[system.index(src)]
     used = np.flatnonzero(np.any(dirs != 0, axis=0))
-    branch = model_branch(
-        system,
-        p,
-        param,
-        n_mesh=n_mesh,
-        guess=hopf_guess,
-        param_range=data_range(data.param),
-        stability=INTERNAL_STABILITY,
-    )
+    branch = data_branch(system, p, param, data.param, n_mesh=n_mesh, guess=hopf_guess)
     orbits = OrbitSet(system, param, n_mesh, outputs)
     matched = orbits.match(branch, data, p, skip_missing=True)
     meas_all = np.column_stack([data.column(o) for o in outputs])
