@@ -21,6 +21,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parent))
 from _report import write_section
 
 BIFID = Path(sys.executable).with_name("bifid")
+RESULTS = Path(__file__).resolve().parent / "results" / "demo.json"
 
 
 def run_demo(which: str, out: Path) -> tuple[float, dict]:
@@ -54,7 +55,8 @@ def main() -> int:
         "Chromium: figures shown |",
         "|---|---|---|---|---|---|---|---|---|---|---|",
     ]
-    details = []
+    # rows of a demo not run this time (--only) are kept from the last run that measured it
+    rows = json.loads(RESULTS.read_text()) if RESULTS.exists() else {}
     for which in [args.only] if args.only else ["flutter", "forced"]:
         with tempfile.TemporaryDirectory(prefix=f"bifid-demo-{which}-") as tmp:
             out = Path(tmp)
@@ -66,20 +68,24 @@ def main() -> int:
             if find_chromium() is not None:
                 res = check_report(out / "report.html")
                 shown = f"{res['decoded']}/{res['in_html']}"
-            lines.append(
+            row = (
                 f"| {which} | {wall1:.0f} | {t['truth']:.0f} | {t['campaign']:.0f} | "
                 f"{t['model']:.0f} | {t.get('mechanistic', 0):.0f} | {t['compare']:.0f} | "
                 f"{wall2:.1f} | "
                 f"{wall1 / wall2:.0f}× | {sum(c['passed'] for c in chk.values())}/{len(chk)} | "
                 f"{shown} |"
             )
-            details.append(
-                f"**{which}** errors: "
-                + ", ".join(
-                    f"{k} = {v['value']:.4g} (limit {v['limit']:g})" for k, v in chk.items()
-                )
+            detail = f"**{which}** errors: " + ", ".join(
+                f"{k} = {v['value']:.4g} (limit {v['limit']:g})" for k, v in chk.items()
             )
-            print(lines[-1], flush=True)
+            stamp = time.strftime("%Y-%m-%d %H:%M UTC", time.gmtime())
+            rows[which] = {"row": row, "detail": detail, "run": stamp}
+            print(row, flush=True)
+    RESULTS.parent.mkdir(parents=True, exist_ok=True)
+    RESULTS.write_text(json.dumps(rows, indent=1) + "\n")
+    names = [w for w in ("flutter", "forced") if w in rows]
+    lines += [rows[w]["row"] for w in names]
+    details = [f"{rows[w]['detail']} (run {rows[w]['run']})" for w in names]
     write_section("demo", "\n".join([*lines, "", *details]))
     return 0
 

@@ -1,0 +1,158 @@
+"""Kernel-model replications of ``bench_calibration.py`` (its docstring describes the cases):
+one fit on fresh noise, the FRC at an untrained forcing level predicted at every level, and
+per quantity (both folds' Ω, the peak's Ω and amplitude) the estimate, the truth and the
+intervals."""
+
+from __future__ import annotations
+
+import warnings
+from collections.abc import Sequence
+
+import numpy as np
+
+DUFFING = {"c": 0.0015, "k": 0.0005, "w0": 1.0, "kappa": 0.5}
+KERNEL_TRAIN_F, KERNEL_PREDICT_F = (0.007, 0.01), 0.0085
+
+
+def duffing_frc(forcing: float, psi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Exact FRC (Ω, ρ) of the averaged Duffing oscillator at phases ψ."""
+    g = DUFFING["kappa"] * forcing
+    rho = g * np.sin(psi) / DUFFING["c"]
+    return DUFFING["w0"] + DUFFING["k"] * rho**2 + g * np.cos(psi) / rho, rho
+
+
+def duffing_truth(forcing: float) -> dict[str, float]:
+    """Folds (local extrema of Ω(ψ)) and peak of the exact FRC on a dense ψ grid."""
+    om, rho = duffing_frc(forcing, np.linspace(1e-3, np.pi - 1e-3, 400_001))
+    d = np.diff(om)
+    folds = np.sort(om[np.nonzero(np.sign(d[:-1]) != np.sign(d[1:]))[0] + 1])
+    i = int(np.argmax(rho))
+    return {"fold_low": folds[0], "fold_high": folds[-1], "peak": om[i], "peak_amp": rho[i]}
+
+
+def kernel_replication(noise: float, seed: int, levels: Sequence[float]) -> list[dict]:
+    """One kernel-model fit on fresh noise; per quantity the estimate, the truth and the
+    intervals at every level."""
+    from bifid.identify import ForcedKernelModel
+
+    rng = np.random.default_rng(seed)
+    psi = np.linspace(0.12, np.pi - 0.12, 16)
+    cols = {"omega": [], "forcing": [], "amplitude": [], "phase": []}
+    for f in KERNEL_TRAIN_F:
+        om, rho = duffing_frc(f, psi)
+        cols["omega"].append(om)
+        cols["forcing"].append(np.full(psi.size, f))
+        cols["amplitude"].append(rho * (1 + noise * rng.standard_normal(psi.size)))
+        cols["phase"].append(np.pi - psi + noise * rng.standard_normal(psi.size))
+
+    model = ForcedKernelModel(
+        forcing_scale=DUFFING["kappa"], selection="loo", observation=False, seed=seed
+    )
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model.fit(**{k: np.concatenate(v) for k, v in cols.items()})
+    truth = duffing_truth(KERNEL_PREDICT_F)
+    diagrams = {
+        lv: model.predict_diagram(kind="frc", forcing=KERNEL_PREDICT_F, range=(0.95, 1.2), level=lv)
+        for lv in levels
+    }
+    return frc_rows(truth, diagrams)
+
+
+# Simulated forced systems: the FRCs of the true ODE by continuation (the truth module of
+# bench_forced_kernel.py, cached), fitted as `bifid fit forced` fits them.
+KERNEL_ODES = {
+    "duffing": {
+        "observed": "q",
+        "window": (0.8, 1.5),
+        "pick": (0.85, 1.3),
+        "train": (0.01, 0.02),
+        "predict": 0.015,
+    },
+    "shaw_pierre": {
+        "observed": "x1",
+        "window": (0.95, 1.05),
+        "pick": (0.96, 1.03),
+        "train": (0.007, 0.01),
+        "predict": 0.0085,
+    },
+}
+
+
+# `bifid fit forced --selection loo`: on the Duffing ODE at 1 % noise the marginal
+# likelihood's choice can let the GP of `a` follow the noise (spurious folds)
+KERNEL_ODE_FIT = {"selection": "loo"}
+
+
+def ode_truth(system: str) -> dict[str, float]:
+    """Folds (located by continuation) and peak of the true FRC at the untrained forcing."""
+    from bench_forced_kernel import true_peak, truth_frc
+
+    cfg = KERNEL_ODES[system]
+    d = truth_frc(system, cfg["predict"], cfg["window"])
+    folds = np.sort(d["folds"][:, 0])
+    if folds.size != 2:
+        raise RuntimeError(f"the true FRC of {system} has {folds.size} folds in the window")
+    om, amp = true_peak(d)
+    return {"fold_low": folds[0], "fold_high": folds[1], "peak": om, "peak_amp": amp}
+
+
+def ode_dataset(system: str, noise: float, seed: int):
+    """Two FRCs of the true system (16 points each, spread by arclength, stable and
+    unstable) with relative amplitude noise and phase noise (radians) of size ``noise``."""
+    import dataclasses
+
+    from bench_forced_kernel import arclength_pick, records_from_truth, truth_frc
+    from bifid.data import forced_dataset
+
+    cfg = KERNEL_ODES[system]
+    rng = np.random.default_rng(seed)
+    recs = []
+    for c, f in enumerate(cfg["train"]):
+        d = truth_frc(system, f, cfg["window"])
+        for r in records_from_truth(d, arclength_pick(d, 16, cfg["pick"]), c):
+            amp = r.amplitude * (1 + noise * rng.standard_normal())
+            recs.append(
+                dataclasses.replace(r, amplitude=amp, phase=r.phase + noise * rng.standard_normal())
+            )
+    obs = cfg["observed"]
+    return forced_dataset(recs, [obs], observed=obs, system=system, source="bench_calibration")
+
+
+def ode_kernel_replication(
+    system: str, noise: float, seed: int, levels: Sequence[float]
+) -> list[dict]:
+    """One kernel-model fit (``bifid fit forced --selection loo``) on fresh noise; per
+    quantity the estimate, the truth and the intervals at every level."""
+    from bifid.identify import ForcedKernelModel
+
+    model = ForcedKernelModel(seed=seed, **KERNEL_ODE_FIT)
+    cfg = KERNEL_ODES[system]
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        model.fit(ode_dataset(system, noise, seed))
+        diagrams = {
+            lv: model.predict_diagram(
+                kind="frc", forcing=cfg["predict"], range=cfg["window"], level=lv
+            )
+            for lv in levels
+        }
+    return frc_rows(ode_truth(system), diagrams)
+
+
+def frc_rows(truth: dict[str, float], diagrams: dict) -> list[dict]:
+    """Rows of the FRC's two folds (Ω) and peak (Ω, amplitude), ``diagrams`` by level."""
+    rows = {k: {"quantity": k, "truth": float(v), "intervals": {}} for k, v in truth.items()}
+    for lv, d in diagrams.items():
+        folds = sorted(d.special("fold"), key=lambda sp: sp.param)
+        (peak,) = d.special("peak")
+        if len(folds) != 2:
+            raise RuntimeError(f"{len(folds)} folds predicted (2 exist)")
+        pts = {"fold_low": folds[0], "fold_high": folds[-1], "peak": peak}
+        for k, sp in pts.items():
+            rows[k]["estimate"] = float(sp.param)
+            rows[k]["intervals"][str(lv)] = [float(x) for x in sp.intervals["param"]]
+        rows["peak_amp"]["estimate"] = float(np.ravel(peak.data["amplitude"])[0])
+        lo, hi = peak.intervals["amplitude"]
+        rows["peak_amp"]["intervals"][str(lv)] = [float(lo[0]), float(hi[0])]
+    return list(rows.values())
