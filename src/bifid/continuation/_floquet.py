@@ -470,13 +470,9 @@ def collocation_floquet(operators: Sequence[np.ndarray], n: int) -> Floquet:
             strip = nu[(nu.imag > -0.5 + _STRIP_SHIFT) & (nu.imag <= 0.5 + _STRIP_SHIFT)]
             if strip.size < n:
                 continue
-            miss = np.array(
-                [
-                    max(np.min(np.abs(nu - (c + 1j))), np.min(np.abs(nu - (c - 1j))))
-                    / max(1.0, abs(c))
-                    for c in strip
-                ]
-            )
+            up = np.min(np.abs(nu[None, :] - (strip[:, None] + 1j)), axis=1)
+            down = np.min(np.abs(nu[None, :] - (strip[:, None] - 1j)), axis=1)
+            miss = np.maximum(up, down) / np.maximum(1.0, np.abs(strip))
             keep = np.argsort(miss, kind="stable")[:n]
             if miss[keep[-1]] > ALIAS_TOL:
                 continue

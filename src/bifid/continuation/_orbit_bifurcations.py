@@ -74,7 +74,7 @@ BRANCH_TANGENT_MIN = 1e-3
 STABILITY_SOURCES = ("integrated", "collocation")
 
 
-def collocation_operator(stage: Stage, y: np.ndarray, n: int) -> np.ndarray:
+def collocation_operator(stage: Stage, y: np.ndarray) -> np.ndarray:
     """The mesh block ``D_M (x) I - (T / 2 pi) blockdiag(f_x(v_k))`` of the collocation
     Jacobian at the orbit ``y = [v, T, lambda]`` (:func:`collocation_floquet`)."""
     Mn = len(y) - 2
@@ -132,7 +132,7 @@ class BracketContext:
         """Non-trivial multipliers and their log-moduli of the orbit ``y`` (mesh ``M``)."""
         n = self.n
         if self.autonomous and self.stability == "collocation":
-            fl = collocation_floquet([collocation_operator(self.stage_of(M), y, n)], n)
+            fl = collocation_floquet([collocation_operator(self.stage_of(M), y)], n)
             if not fl.ok[0]:
                 raise ArithmeticError("the orbit's collocation multipliers are not resolved")
             return fl.nontrivial(0)

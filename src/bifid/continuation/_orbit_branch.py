@@ -321,7 +321,7 @@ def _branch_floquet(
     if rows:
         if stability == "collocation":
             fl = collocation_floquet(
-                [collocation_operator(stage_of(run.meshes[i]), run.ys[i], n) for i in rows], n
+                [collocation_operator(stage_of(run.meshes[i]), run.ys[i]) for i in rows], n
             )
         else:
             ps = np.repeat(np.asarray(p)[None, :], len(rows), axis=0)

@@ -8,10 +8,10 @@ from typing import Any
 import numpy as np
 
 from bifid.errors import BifidInputError, ConvergenceWarning
+from bifid.identify._blas import one_blas_thread
 from bifid.identify._records import LCOData
 from bifid.identify.hopf_hybrid._prepare import measured_amplitude, prepare
 from bifid.identify.hopf_hybrid._state import member
-from bifid.identify.hopf_hybrid._timing import one_blas_thread
 
 __all__ = ["leave_one_out", "refit_without"]
 

@@ -18,6 +18,7 @@ import numpy as np
 from bifid.continuation import Diagram
 from bifid.errors import BifidInputError
 from bifid.identify._base import DiagramQuery, IdentifiedModel, Orbit
+from bifid.identify._blas import one_blas_thread
 from bifid.identify._intervals import warn_extrapolation
 from bifid.identify._persistence import register_model_type
 from bifid.identify._records import LCOData, as_lco_data
@@ -30,7 +31,7 @@ from bifid.identify.hopf_hybrid._normal_form import raw_a2
 from bifid.identify.hopf_hybrid._prepare import measured_amplitude, prepare
 from bifid.identify.hopf_hybrid._speed_stage import PhaseMatcher, speed_config, train_speed
 from bifid.identify.hopf_hybrid._state import HybridState, states_from_json, states_to_json
-from bifid.identify.hopf_hybrid._timing import StageTimer, one_blas_thread, progress_bar
+from bifid.identify.hopf_hybrid._timing import StageTimer, progress_bar
 from bifid.identify.hopf_hybrid._train import (
     configure,
     select_map_hyper,

@@ -20,9 +20,8 @@ import jax
 import numpy as np
 from rich.console import Console
 from rich.progress import Progress
-from threadpoolctl import threadpool_limits
 
-__all__ = ["StageTimer", "one_blas_thread", "progress_bar"]
+__all__ = ["StageTimer", "progress_bar"]
 
 _MAX_EXECUTABLES = 32
 _EXECUTABLES: OrderedDict = OrderedDict()  # (fn, tree structure, shapes) -> executable
@@ -57,12 +56,6 @@ class StageTimer:
         self.add(f"compile_{name}", t1 - t0)
         self.add(name, time.perf_counter() - t1)
         return out
-
-
-def one_blas_thread() -> contextlib.AbstractContextManager:
-    """One BLAS thread while fitting: the linear algebra is small, and multithreaded BLAS on
-    a loaded 2-core machine is up to 20× slower than one thread (oversubscription)."""
-    return threadpool_limits(limits=1, user_api="blas")
 
 
 @contextlib.contextmanager

@@ -9,7 +9,6 @@ from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
-from threadpoolctl import threadpool_limits
 
 from bifid.continuation import Branch, ContinuationOptions, hopf_orbits, locate_hopf
 from bifid.errors import ConvergenceWarning
@@ -25,18 +24,12 @@ __all__ = [
     "data_range",
     "hopf_summary",
     "model_branch",
-    "one_blas_thread",
     "orbit_options",
 ]
 
 #: where the multipliers of the identification's own branches come from (never shown to a
 #: user; see :func:`model_branch`)
 INTERNAL_STABILITY = "collocation"
-
-#: decorator: BLAS on one thread for the duration of the call (the fits factorise many
-#: small dense matrices, which a multi-threaded BLAS slows down many times under load;
-#: set once per call, not per factorisation, whose library scan would cost more)
-one_blas_thread = threadpool_limits.wrap(limits=1, user_api="blas")
 
 
 def orbit_options(lo: float, hi: float, max_steps: int) -> ContinuationOptions:

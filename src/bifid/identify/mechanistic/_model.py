@@ -18,10 +18,11 @@ import numpy as np
 from bifid.continuation import Diagram
 from bifid.errors import BifidInputError, ConvergenceError
 from bifid.identify._base import DiagramQuery, IdentifiedModel, Orbit
+from bifid.identify._blas import one_blas_thread
 from bifid.identify._intervals import Covariance, warn_extrapolation
 from bifid.identify._persistence import register_model_type
 from bifid.identify._records import LCOData, as_lco_data
-from bifid.identify.mechanistic._branch import hopf_summary, one_blas_thread
+from bifid.identify.mechanistic._branch import hopf_summary
 from bifid.identify.mechanistic._cubic import hopf_point_regression
 from bifid.identify.mechanistic._linear import linear_stage
 from bifid.identify.mechanistic._near_hopf import fit_near_hopf

@@ -30,13 +30,13 @@ import numpy as np
 
 from bifid.continuation import Branch
 from bifid.errors import BifidInputError, ConvergenceError, ConvergenceWarning
+from bifid.identify._blas import one_blas_thread
 from bifid.identify._least_squares import LeastSquaresResult, least_squares
 from bifid.identify._records import LCOData
 from bifid.identify.mechanistic._branch import (
     INTERNAL_STABILITY,
     data_range,
     model_branch,
-    one_blas_thread,
 )
 from bifid.identify.mechanistic._cubic import nonlinear_only
 from bifid.identify.mechanistic._near_hopf import LogParameters, fit_near_hopf
