@@ -44,6 +44,9 @@ from bifid.continuation._correctors import (
 from bifid.continuation._options import ContinuationOptions
 from bifid.errors import BifidInputError
 
+#: a step the monitor rejects with factor ``f`` is retried with ``MONITOR_SAFETY * f`` of it
+MONITOR_SAFETY = 0.8
+
 __all__ = [
     "AbstractCorrector",
     "Continuation",
@@ -160,9 +163,11 @@ class Continuation:
         (the tangent is then only used at the start and for fold location).
     monitor : callable ``(y, y_new, args) -> float``, optional
         Step control beyond the corrector's: called with each corrected step before it is
-        accepted; a return value ``f < 1`` rejects the step and retries with ``ds * f``
-        (e.g. when the amplitude or the harmonic content changed too much to trust the
-        curve between the two points), ``f >= 1`` accepts it.
+        accepted; a return value ``f < 1`` rejects the step (e.g. when the amplitude or
+        the harmonic content changed too much to trust the curve between the two points)
+        and retries with ``ds * max(MONITOR_SAFETY * f, 0.1)`` (the safety factor keeps a
+        monitor that is linear in ``ds`` from rejecting ever closer to its limit),
+        ``f >= 1`` accepts it.
     param_name : str, optional
         Name of the parameter in messages (default: ``args["param_name"]`` when ``args``
         is a dict that has it, else "parameter").
@@ -312,7 +317,7 @@ class Continuation:
                 return Step(
                     replace(
                         state,
-                        ds=max(ds * max(factor, 0.1), o.ds_min),
+                        ds=max(ds * max(MONITOR_SAFETY * factor, 0.1), o.ds_min),
                         corrector=self.corrector.state(),
                     )
                 )
