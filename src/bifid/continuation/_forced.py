@@ -162,7 +162,8 @@ def harmonic_monitor(
     n: int, change: float = HARMONIC_CHANGE, floor: float = HARMONIC_FLOOR
 ) -> Callable[[np.ndarray, np.ndarray, int], float]:
     """Step control on the harmonic content (module docstring): ``(y, y_new, M) ->
-    factor``, ``< 1`` rejects the step."""
+    factor``, the headroom ``change / (largest relative change)``: ``< 1`` rejects the
+    step, ``> 1`` lets the next one grow."""
 
     def monitor(y, y_new, M):
         c0 = np.fft.rfft(np.asarray(y[: M * n]).reshape(M, n), axis=0)[: M // 2]
@@ -170,11 +171,11 @@ def harmonic_monitor(
         size0, size1 = float(np.max(np.abs(c0[1:]))), float(np.max(np.abs(c1[1:])))
         scale = max(size0, size1)
         if size0 == 0.0:  # the first step from rest (F = 0): nothing to compare
-            return 1.0
+            return math.inf
         ref = np.maximum(np.abs(c0), np.abs(c1))
         keep = ref > floor * scale
         rel = float(np.max(np.abs(c1 - c0)[keep] / ref[keep])) if np.any(keep) else 0.0
-        return 1.0 if rel <= change else change / rel
+        return change / rel if rel > 0.0 else math.inf
 
     return monitor
 

@@ -111,14 +111,15 @@ class OrbitEnds:
     def monitor(self, y, y_new, M) -> float:
         """Step control of :func:`bifid.continuation._mesh.run_adaptive`: a step that takes a
         sizeable orbit onto (nearly) the equilibrium jumped to the trivial solution of the
-        collocation equations, not along the branch; it is rejected (factor 0.25)."""
+        collocation equations, not along the branch; it is rejected (factor 0.25); any other
+        step is accepted with no limit on the next one (``inf``)."""
         n = self.n_states
         a_prev = _centred(np.asarray(y[: M * n]).reshape(M, n))
         a_new = _centred(np.asarray(y_new[: M * n]).reshape(M, n))
         peak = max([*self.amplitudes, self.first_amplitude])
         if a_prev > COLLAPSE_FROM * peak and a_new < COLLAPSE_TO * a_prev:
             return 0.25
-        return 1.0
+        return math.inf
 
 
 def homoclinic_signature(

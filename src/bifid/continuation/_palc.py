@@ -166,8 +166,10 @@ class Continuation:
         accepted; a return value ``f < 1`` rejects the step (e.g. when the amplitude or
         the harmonic content changed too much to trust the curve between the two points)
         and retries with ``ds * max(MONITOR_SAFETY * f, 0.1)`` (the safety factor keeps a
-        monitor that is linear in ``ds`` from rejecting ever closer to its limit),
-        ``f >= 1`` accepts it.
+        monitor that is linear in ``ds`` from rejecting ever closer to its limit);
+        ``f >= 1`` accepts it, and the next step grows by at most ``MONITOR_SAFETY * f``
+        (a monitor that returns its headroom, limit / change, avoids a rejection after
+        every growth; one with nothing to say returns ``inf``).
     param_name : str, optional
         Name of the parameter in messages (default: ``args["param_name"]`` when ``args``
         is a dict that has it, else "parameter").
@@ -306,13 +308,14 @@ class Continuation:
         row = w * direction
         r = self.corrector.correct(y_pred, row, float(row @ y_pred), args)
         ok = r.converged
-        t_new, sign_new = None, math.nan
+        t_new, sign_new, growth = None, math.nan, o.growth
         if ok:
             t_new, sign_new = self.corrector.tangent(r.y, direction, w, args)
             # reject steps that turn too sharply: the corrector may have jumped branch
             ok = float(t_new @ (w * direction)) > 0.8 or ds <= o.ds_min * 1.0001
         if ok and self.monitor is not None and ds > o.ds_min * 1.0001:
             factor = float(self.monitor(y, r.y, args))
+            growth = min(o.growth, max(1.0, MONITOR_SAFETY * factor))
             if factor < 1.0:
                 return Step(
                     replace(
@@ -352,7 +355,7 @@ class Continuation:
         if self.update_args is not None:
             args = self.update_args(y_new, args)
         if r.iterations <= 3:
-            ds = min(ds * o.growth, o.ds_max)
+            ds = min(ds * growth, o.ds_max)
         elif r.iterations >= o.newton_max_iter - 2:
             ds = max(ds / 2.0, o.ds_min)
         new = replace(
