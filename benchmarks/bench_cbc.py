@@ -26,6 +26,7 @@ speed (Fourier collocation from the nearest orbit of the continued branch,
 from __future__ import annotations
 
 import argparse
+import collections
 import itertools
 import json
 import os
@@ -388,7 +389,10 @@ def variants(tmp: Path, keep: Path | None = None) -> list[str]:
         if keep is not None:
             (keep / f"var_{f2}_{f3}.json").write_text(json.dumps(d, indent=1, default=str))
         total += 12
-        measured += len(d["points"])
+        # two LCOs are requested per speed (the stable and the unstable one): a third
+        # point at a speed (a retry's copy, another cycle) does not count twice
+        per_speed = collections.Counter(round(float(p["param"]), 4) for p in d["points"])
+        measured += sum(min(2, n) for n in per_speed.values())
         unstable = [
             p for p in d["points"] if p.get("truth_stable") is False or p["stable"] is False
         ]

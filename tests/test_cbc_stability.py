@@ -14,8 +14,10 @@ from bifid.cbc import (
     VirtualRig,
     controlled_floquet,
     defaults_for,
+    orbit_polar_target,
     switch_off_test,
 )
+from bifid.errors import BifidInputError
 from bifid.systems import get_system
 
 R0 = math.sqrt(0.1)
@@ -95,3 +97,28 @@ def test_output_filter_enters_the_controlled_floquet_multipliers():
         errs.append(abs(fmax / f0 - 1))
     assert errs[0] > 0.1  # a 1 Hz filter on a 0.16 Hz orbit changes the loop
     assert errs[1] < errs[0] / 5 and errs[2] < errs[1] / 5 and errs[2] < 5e-3
+
+
+def test_polar_target_of_an_orbit_is_non_invasive_in_a_stretched_plane():
+    """Check the polar target of a known orbit in the (u1, u1') plane with omega0 = 10,
+    where the orbit is an ellipse of aspect 10 (u1' = -10 u2): in the orbit's own frame
+    (the default) the orbit still solves the controlled system (trivial multiplier 1) and
+    the radial feedback gives the closed form exp((0.2 - kp/2) T) with T = 2π/ω0 (eq.
+    3.16: radial rate 0.2 without control, ``kp`` acting on u1 only: -kp/2 on average); in
+    the unscaled frame ten harmonics of r*(φ) cannot follow the ellipse, the target is
+    invasive, and the computation is refused instead of returning multipliers of a
+    curve that is not an orbit."""
+    s = get_system("hopf")
+    p = np.asarray(s.param_vector(mu=-0.1, q5=0.0, omega0=10.0))
+    tau = 2 * np.pi * np.arange(64) / 64
+    V = np.stack([R0 * np.cos(tau), R0 * np.sin(tau)], axis=1)
+    T = 2 * np.pi / 10.0
+    kp = 1.0
+    c = PDController(kp, 0.0, "u1", "u1_dot")
+    target = orbit_polar_target(V, s, "u1", "u1_dot", 10, p=p)
+    mu, fmax = controlled_floquet(s, c, target, V, T, p)
+    assert np.min(np.abs(mu - 1.0)) < 1e-8
+    assert fmax == pytest.approx(math.exp((0.2 - kp / 2) * T), rel=1e-3)
+    stretched = orbit_polar_target(V, s, "u1", "u1_dot", 10, p=p, scale=(1.0, 1.0))
+    with pytest.raises(BifidInputError, match="not a solution of the controlled system"):
+        controlled_floquet(s, c, stretched, V, T, p)

@@ -18,10 +18,14 @@
   smallest to 1.15 times the largest first-harmonic amplitude of ``x1``, spaced at most
   half the smallest distance between coexisting cycles; the scan goes on past it while
   an orbit lies above) and the noise reference (the smallest centred amplitude per
-  output). Where some of those cycles are unstable, the gains are the candidates
-  ``kp ∈ {0, 0.3, 1} ω²/b``, ``kd ∈ {0.1, 0.3, 1, 3} ω/b`` on ``(x1, ẋ1)`` whose
-  largest non-trivial *controlled* Floquet multiplier over three cycles of the range
-  (smallest, middle, largest) is smallest (thesis Fig. 3.9); stable cycles only need
+  output). Where some of those cycles are unstable, the gains are, among the candidates
+  ``kp ∈ {0, 0.3, 1} ω²/b``, ``kd ∈ {0.1, 0.3, 1, 3} ω/b`` on ``(x1, ẋ1)``, the
+  gentlest (smallest in those units) whose largest non-trivial *controlled* Floquet
+  multiplier over three cycles of the range (smallest, middle, largest) is at most
+  :data:`GAIN_MARGIN` — else the one with the smallest (thesis Fig. 3.9): larger gains
+  feed more noise to the actuator and need more of its range. The multipliers are those
+  of the polar target of each cycle in its own frame
+  (:func:`~bifid.cbc.orbit_polar_target`), non-invasive on it. Stable cycles only need
   the controller to lock, and keep ``kp = ω²/(2b)``, ``kd = ω/(2b)``.
 - The equilibrium (Newton from ``System.x0``, else from the origin) is where the rig
   rests and where the first PP-CBC target is centred.
@@ -38,7 +42,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from bifid.cbc._controllers import PDController
-from bifid.cbc._stability import augmented_params, controlled_rhs, orbit_polar_target
+from bifid.cbc._stability import (
+    augmented_params,
+    controlled_rhs,
+    invariant,
+    orbit_polar_target,
+)
 from bifid.continuation import ContinuationOptions, continue_from_hopf, floquet_multipliers
 from bifid.errors import BifidInputError, ConvergenceError, ConvergenceWarning
 from bifid.systems import System
@@ -270,6 +279,15 @@ def _from_cycles(system: System, cycles, x1: str) -> dict[str, Any]:
     }
 
 
+#: derived gains: the gentlest candidate whose controlled multipliers are all below this
+GAIN_MARGIN = 0.5
+
+
+def _gain_factors(gains: tuple[float, float], omega: float, b: float) -> tuple[float, float]:
+    """``(kp, kd)`` in the units of the candidate grid, ``(kp b/ω², kd b/ω)``."""
+    return gains[0] * b / omega**2, gains[1] * b / omega
+
+
 def _gains(
     system: System, p, param: str, cycles, x1: str, x2: str, omega: float, b: float
 ) -> dict[str, float]:
@@ -297,15 +315,23 @@ def _gains(
             periods.append(period)
             qs.append(augmented_params(pvs[j], PDController(kp, kd, x1, x2), targets[j]))
     try:
-        _, _, fmax = floquet_multipliers(
+        mults, _, fmax = floquet_multipliers(
             rhs, np.stack(orbits), np.array(periods), np.stack(qs), autonomous=True
         )
     except (BifidInputError, ArithmeticError, ValueError):
         return {}
-    worst = np.nan_to_num(
-        np.asarray(fmax, dtype=float).reshape(len(candidates), len(picks)), nan=np.inf
-    ).max(axis=1)
-    best = int(np.argmin(worst))
+    # a candidate on an orbit without the trivial multiplier was computed off the
+    # controlled system's orbit (an invasive target): it proves nothing
+    fmax = np.where([invariant(m) for m in mults], np.asarray(fmax, dtype=float), np.inf)
+    worst = np.nan_to_num(fmax.reshape(len(candidates), len(picks)), nan=np.inf).max(axis=1)
+    # the gentlest candidate that stabilises with margin (least actuator effort and
+    # noise fed back), else the most stabilising one
+    gentle = [k for k in range(len(candidates)) if worst[k] <= GAIN_MARGIN]
+    best = (
+        min(gentle, key=lambda k: math.hypot(*_gain_factors(candidates[k], omega, b)))
+        if gentle
+        else int(np.argmin(worst))
+    )
     if worst[best] >= 1.0:
         warnings.warn(
             f"CBC defaults of {system.name!r}: no candidate gains stabilise the "

@@ -246,8 +246,8 @@ def orbit_polar_target(
     x1: str,
     x2: str,
     n_harmonics: int,
-    scale: tuple[float, float] = (1.0, 1.0),
-    origin: tuple[float, float] = (0.0, 0.0),
+    scale: tuple[float, float] | None = None,
+    origin: tuple[float, float] | None = None,
     p: np.ndarray | None = None,
     n_fine: int = 4096,
     transform=None,
@@ -260,6 +260,13 @@ def orbit_polar_target(
         States on ``t_k = T k / M`` (one period).
     x1, x2 : str
         Controller signals (states or ``"<state>_dot"``, the latter from ``system.field``).
+    scale, origin, transform : optional
+        The target's frame (:class:`~bifid.cbc.PolarTarget`). Without any of them, the
+        frame a rig's campaign uses (``TargetFamily.reframed``): centred on the orbit's
+        mean, mapping the first-harmonic ellipse of ``(x1, x2)`` to a circle. In a frame
+        where the orbit is far from a circle (``(h, ḣ)`` with ``ḣ ~ ω h``), ``n_harmonics``
+        terms of ``r*(φ)`` cannot follow it and the target is invasive: the orbit is then
+        not a solution of the controlled system (:func:`controlled_floquet` refuses it).
     """
     orbit = np.asarray(orbit, dtype=float)
     M = orbit.shape[0]
@@ -274,7 +281,22 @@ def orbit_polar_target(
         return fx[:, i]
 
     a, b = sig(x1), sig(x2)
-    frame = PolarTarget(np.zeros(1), scale=scale, origin=origin, transform=transform)
+    if scale is None and origin is None and transform is None:
+        c = np.fft.rfft(np.column_stack([a, b]), axis=0) / n_fine
+        # x ≈ c0 + A cos φ + B sin φ per signal: [A, B] rows map the unit circle onto it
+        ellipse = np.array(
+            [[2 * c[1, 0].real, -2 * c[1, 0].imag], [2 * c[1, 1].real, -2 * c[1, 1].imag]]
+        )
+        radius = math.hypot(*ellipse[0])
+        if radius > 0 and abs(np.linalg.det(ellipse)) > 1e-9 * np.max(np.abs(ellipse)) ** 2:
+            transform = ellipse / radius
+        origin = (float(c[0, 0].real), float(c[0, 1].real))
+    frame = PolarTarget(
+        np.zeros(1),
+        scale=(1.0, 1.0) if scale is None else scale,
+        origin=(0.0, 0.0) if origin is None else origin,
+        transform=transform,
+    )
     xi1, xi2 = frame.to_xi(a, b)
     coef = polar_project(np.arctan2(xi2, xi1), np.hypot(xi1, xi2), n_harmonics)
     return frame.with_coefficients(coef)
@@ -329,4 +351,23 @@ def controlled_floquet(
         steps_per_mesh=steps,
         autonomous=forcing is None,
     )
+    if forcing is None and not invariant(mults[0]):
+        raise BifidInputError(
+            "the orbit is not a solution of the controlled system (no Floquet multiplier "
+            f"within {TRIVIAL_TOL:g} of 1; largest {np.max(np.abs(mults[0])):.3g}): the "
+            "target is invasive on it -- build it with orbit_polar_target in the orbit's "
+            "own frame (its default) or with more harmonics."
+        )
     return mults[0], float(fmax[0])
+
+
+#: an autonomous orbit of the controlled system has a multiplier this close to 1 (the
+#: trivial one; 4e-5 on measured flutter LCOs, 1e-9 on model orbits)
+TRIVIAL_TOL = 1e-3
+
+
+def invariant(multipliers: np.ndarray) -> bool:
+    """Whether Floquet multipliers of an autonomous orbit include the trivial one (the
+    orbit solves the controlled system: the target is non-invasive on it)."""
+    m = np.asarray(multipliers)
+    return bool(np.all(np.isfinite(m)) and np.min(np.abs(m - 1.0)) <= TRIVIAL_TOL)
