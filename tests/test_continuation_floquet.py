@@ -103,3 +103,35 @@ def test_three_state_multipliers_match_exact_values():
         _, logm = fl.nontrivial(i)
         assert np.allclose(np.sort(logm), exact, rtol=1e-9)
     assert np.all(fl.stable() == 1.0)
+
+
+def _oscillator(x, t, p):
+    import jax.numpy as jnp
+
+    # a damped oscillator in badly matched units: velocity in units 1e4 times larger
+    return jnp.stack([1e4 * x[1], -(p[0] ** 2) * 1e-4 * x[0] - p[1] * x[1]])
+
+
+def test_monodromy_of_a_badly_scaled_linear_system_matches_expm():
+    """Check monodromy matrices (integrated in balanced coordinates and transformed back)
+    against ``expm(A T)`` of the linear field, entry by entry relative to each entry's
+    scale, and the multipliers against ``exp(T eig(A))``."""
+    import scipy.linalg
+
+    from bifid.continuation import monodromy
+
+    ps = np.array([[3.0, 0.1], [20.0, 2.0]])
+    T = np.array([1.3, 0.7])
+    V = np.zeros((2, 16, 2))
+    Phi, ok = monodromy(_oscillator, V, T, ps)
+    assert ok.all()
+    for i, (w, c) in enumerate(ps):
+        A = np.array([[0.0, 1e4], [-(w**2) * 1e-4, -c]])
+        exact = scipy.linalg.expm(A * T[i])
+        scale = np.outer([1e2, 1e-2], [1e-2, 1e2])  # the sizes of the entries of Phi
+        assert np.allclose(Phi[i] / scale, exact / scale, rtol=0, atol=1e-9)
+    fl = floquet(_oscillator, V, T, ps, autonomous=False)
+    for i, (w, c) in enumerate(ps):
+        A = np.array([[0.0, 1e4], [-(w**2) * 1e-4, -c]])
+        expected = np.sort(np.real(T[i] * np.linalg.eigvals(A)))
+        assert np.allclose(np.sort(fl.log_moduli[i]), expected, rtol=1e-9)

@@ -543,7 +543,10 @@ def _branch_from_dataset(ds: Any) -> Branch:
         p=ds["p"].values,
         status=a["status"],
         message=a["message"],
-        options=ContinuationOptions(**opts) if opts else None,
+        # non-finite options (the default bounds) were written as null: their defaults
+        options=ContinuationOptions(**{k: v for k, v in opts.items() if v is not None})
+        if opts
+        else None,
         meta=json.loads(a["meta"]),
         signals=tuple(json.loads(a["signals"])),
         verification=_take(ds, "verification_"),

@@ -10,49 +10,48 @@ multiplier ``e^{-1325}`` is below the smallest double), so it is never formed:
 
 1. **Factors.** The period is cut into ``K`` sub-intervals ``[t_j, t_{j+1}]`` and on each
    the variational equation is integrated from the identity with error control
-   (diffrax, 8th-order Dormand–Prince, relative tolerance ``1e-11``), giving
-   ``Phi = Phi_{K-1} ... Phi_0``. ``K`` (a power of two) is chosen so that no factor
-   can be worse conditioned than ``e^4``: ``T * max_t (l(S) - l_min(S)) / K <= 4`` with
-   ``S`` the symmetric part of ``f_x`` (a bound from the logarithmic norm).
-2. **Periodic orthogonal iteration.** ``Phi_j Q_j = Q_{j+1} R_j`` (QR) around the period,
+   (diffrax, 8th-order Dormand–Prince, relative tolerance ``1e-11``), in balanced
+   coordinates: ``Psi_j = D^{-1} Phi_j D`` with ``Psi' = (D^{-1} f_x D) Psi`` and ``D`` the
+   diagonal scaling (powers of two, exact) that balances the orbit's mean ``|f_x|``
+   (``scipy.linalg.matrix_balance``; ``D = I`` where that bounds better). ``K`` (a power
+   of two) is chosen so that no factor can be worse conditioned than ``e^4``:
+   ``T * max_t (l_max(S) - l_min(S)) / K <= 4`` with ``S`` the symmetric part of
+   ``D^{-1} f_x D`` (a bound from the logarithmic norm). Unscaled, the bound counts the
+   states' units: on the flutter orbits (velocities ``omega`` times displacements) it
+   asked for 256 factors, the balanced one for 8, with the same ``log|mu|`` to ``1e-12``.
+2. **Periodic orthogonal iteration.** ``Psi_j Q_j = Q_{j+1} R_j`` (QR) around the period,
    repeated with ``Q_0 <- Q_K`` until the leading invariant subspaces of the product
    stop moving (subspace angle ``<= 1e-9``); the triangular product ``R = R_{K-1} ...
    R_0`` is kept with a logarithmic scale per column. With ``Q_0^T Q_K = B``,
-   ``Q_0^T Phi Q_0 = B R`` is block upper triangular across every converged subspace,
+   ``Q_0^T Psi Q_0 = B R`` is block upper triangular across every converged subspace,
    so the multipliers are the eigenvalues of its diagonal blocks, each computed from
    well-scaled numbers: ``log|mu|`` is exact to rounding even for ``e^{-10^4}``. Blocks are
    1x1 for well-separated real multipliers and 2x2 for complex pairs; where convergence
    is slow (close moduli) neighbouring blocks are merged, which is always valid.
 3. **Trivial multiplier.** For autonomous orbits the first column of ``Q_0`` is
-   ``f(x_s(0))``, which the flow maps onto itself: the trivial multiplier is deflated
-   exactly, and the others are those of the complementary block (so a fold's second
-   multiplier at +1 is not confused with the trivial one).
+   ``D^{-1} f(x_s(0))``, which the flow maps onto itself: the trivial multiplier is
+   deflated exactly, and the others are those of the complementary block (so a fold's
+   second multiplier at +1 is not confused with the trivial one).
 
-Written by hand because SciPy has no periodic Schur decomposition and the SLICOT
-routine (Fortran, through ``slycot``) is a heavy binary dependency with a documented
-failure for long products; the matrices here are small (``n`` states) and the
-iteration above is a few dozen lines. The sub-intervals of all the orbits of a batch are
-integrated in ``vmap``-ed, compiled calls over chunks of a fixed number of sub-intervals,
-their ends passed as values, so every branch — of any length, with any number of
-factors — reuses one compiled program per right-hand side (tracing and compiling the
-integrator is what a new program costs: tens of seconds, against milliseconds for a
-call).
+Written by hand: SciPy has no periodic Schur decomposition and SLICOT's (``slycot``) is a
+heavy binary dependency with a documented failure for long products. The sub-intervals
+of a batch are integrated in ``vmap``-ed, compiled calls over chunks of a fixed number
+of sub-intervals, their ends passed as values, so every branch reuses one compiled
+program per right-hand side (tracing and compiling the integrator costs tens of seconds,
+a call milliseconds).
 
 **From the collocation operator** (:func:`collocation_floquet`, the orbit branches'
 ``stability="collocation"``): the Floquet solutions ``e^{rho tau} q(tau)`` (``tau = 2 pi
-t / T``, ``q`` 2pi-periodic) of the orbit's variational equation solve
-``q' - (T / 2 pi) A(tau) q = -rho q``, so the eigenvalues ``nu`` of the collocation
-operator ``L = D_M (x) I - (T / 2 pi) blockdiag(f_x(v_k))`` (the mesh block of the
-collocation Jacobian, already formed by the corrector) are ``-rho - i k`` for every
-integer ``k`` and ``mu = exp(-2 pi nu)`` (``log|mu| = -2 pi Re nu``: no over- or
-underflow). Each multiplier has exactly one eigenvalue in the strip ``-1/2 < Im nu <=
-1/2``; the resolved ones are recognised by their aliases ``nu +- i``, which a spurious
-eigenvalue of the discretisation (the Nyquist mode) does not have. The ``n`` strip
-eigenvalues with the closest aliases are the multipliers; an orbit whose ``n``-th alias
-misses by more than :data:`ALIAS_TOL` is not resolved well enough (``ok`` False). One
-dense eigenvalue problem of ``M n`` unknowns per orbit and nothing to compile: on the
-flutter branches at ``M = 32`` they agree with the integrated multipliers to six
-digits. The trivial multiplier is the eigenvalue nearest 0.
+t / T``, ``q`` 2pi-periodic) solve ``q' - (T / 2 pi) A(tau) q = -rho q``, so the
+eigenvalues ``nu`` of the collocation operator ``L = D_M (x) I - (T / 2 pi)
+blockdiag(f_x(v_k))`` (the mesh block of the collocation Jacobian) are ``-rho - i k`` for
+every integer ``k`` and ``mu = exp(-2 pi nu)`` (no over- or underflow). Each multiplier
+has one eigenvalue in the strip ``-1/2 < Im nu <= 1/2``; the resolved ones are recognised
+by their aliases ``nu +- i``, which a spurious eigenvalue of the discretisation (the
+Nyquist mode) does not have: the ``n`` strip eigenvalues with the closest aliases are the
+multipliers, and an orbit whose ``n``-th alias misses by more than :data:`ALIAS_TOL` is
+not resolved (``ok`` False). One dense eigenvalue problem of ``M n`` unknowns per orbit,
+nothing to compile; the trivial multiplier is the eigenvalue nearest 0.
 
 Stability tolerance: multipliers are accurate to about ``1e-9`` relative; an orbit is
 labelled stable when its largest non-trivial modulus is below ``1 - STABILITY_TOL``,
@@ -72,6 +71,7 @@ import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
+import scipy.linalg
 from threadpoolctl import threadpool_limits
 
 from bifid.errors import BifidInputError
@@ -152,17 +152,19 @@ class Floquet:
 # ----------------------------------------------------------------------- factors
 @functools.lru_cache(maxsize=32)
 def _segments_fn(rhs: Callable) -> Callable:
-    """Compiled ``(x0, t0, t1, p) -> (Phi, ok, f(x0, t0))`` for a batch of sub-intervals:
-    the variational equation from the identity over ``[t0, t1]``. The number of factors
-    of an orbit and the number of orbits are run-time values (a batch of sub-intervals of
-    any orbits), so one program serves every branch."""
+    """Compiled ``(x0, t0, t1, p, d) -> (Psi, ok, f(x0, t0) / d)`` for a batch of
+    sub-intervals: the variational equation in the coordinates scaled by ``D = diag(d)``,
+    ``Psi = D^{-1} Phi D``, from the identity over ``[t0, t1]``. The number of factors of
+    an orbit and the number of orbits are run-time values (a batch of sub-intervals of any
+    orbits), so one program serves every branch."""
 
-    def one(x0, t0, t1, p):
+    def one(x0, t0, t1, p, d):
         n = x0.shape[0]
 
         def vf(t, state, args):
             x, phi = state
-            return rhs(x, t, p), jax.jacfwd(rhs, argnums=0)(x, t, p) @ phi
+            J = jax.jacfwd(rhs, argnums=0)(x, t, p)
+            return rhs(x, t, p), (J * d[None, :] / d[:, None]) @ phi
 
         sol = diffrax.diffeqsolve(
             diffrax.ODETerm(vf),
@@ -176,22 +178,42 @@ def _segments_fn(rhs: Callable) -> Callable:
             throw=False,
         )
         ok = sol.result == diffrax.RESULTS.successful
-        return sol.ys[1][-1], ok, rhs(x0, t0, p)
+        return sol.ys[1][-1], ok, rhs(x0, t0, p) / d
 
     return jax.jit(jax.vmap(one))
 
 
 @functools.lru_cache(maxsize=32)
-def _spread_fn(rhs: Callable) -> Callable:
-    """``max_k (l_max(S) - l_min(S))`` over mesh points, ``S = (J + J^T)/2``."""
+def _jacobians_fn(rhs: Callable) -> Callable:
+    """Compiled ``(V, T, p) -> f_x`` at the points ``V`` of an orbit (times ``T k / len(V)``)."""
 
     def one(V, T, p):
         ts = T * jnp.arange(V.shape[0]) / V.shape[0]
-        J = jax.vmap(jax.jacfwd(rhs, argnums=0), in_axes=(0, 0, None))(V, ts, p)
-        ev = jnp.linalg.eigvalsh(0.5 * (J + jnp.swapaxes(J, 1, 2)))
-        return jnp.max(ev[:, -1] - ev[:, 0])
+        return jax.vmap(jax.jacfwd(rhs, argnums=0), in_axes=(0, 0, None))(V, ts, p)
 
     return jax.jit(jax.vmap(one))
+
+
+def _balancing(J: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per orbit (``J`` of shape ``(n_orbits, n_points, n, n)``), the scaling ``d`` of the
+    balanced coordinates and the bound ``max_k (l_max(S_k) - l_min(S_k))``, ``S_k`` the
+    symmetric part of ``D^{-1} J_k D`` (module docstring); ``d = 1`` where the scaling does
+    not lower the bound or ``J`` is not finite."""
+
+    def spread(A: np.ndarray) -> np.ndarray:
+        ev = np.linalg.eigvalsh(0.5 * (A + np.swapaxes(A, -1, -2)))
+        return np.max(ev[..., -1] - ev[..., 0], axis=-1)
+
+    d = np.ones((J.shape[0], J.shape[-1]))
+    with np.errstate(invalid="ignore"):
+        bound = spread(J)
+    for i in np.flatnonzero(np.all(np.isfinite(J), axis=(1, 2, 3))):
+        mean = np.mean(np.abs(J[i]), axis=0)
+        scale = scipy.linalg.matrix_balance(mean, permute=False, separate=True)[1][0]
+        balanced = spread(J[i] * scale[None, None, :] / scale[None, :, None])
+        if balanced < bound[i]:
+            d[i], bound[i] = scale, balanced
+    return d, bound
 
 
 _CHUNK = 8  # orbits per compiled call
@@ -223,23 +245,26 @@ def _samples(orbits: Sequence[np.ndarray], n_samples: int) -> np.ndarray:
 
 def monodromy_factors(
     rhs: Callable, orbits: np.ndarray | Sequence[np.ndarray], periods: np.ndarray, ps: np.ndarray
-) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """The factors ``Phi_j`` of the monodromy matrices of a batch of orbits (each orbit
-    ``(M_i, n)`` on its own mesh).
+) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The factors of the monodromy matrices of a batch of orbits (each orbit ``(M_i, n)``
+    on its own mesh), in the balanced coordinates of each orbit (module docstring).
 
     Returns
     -------
     factors : array of shape (n_orbits, K, n, n)
-        ``Phi = factors[:, K-1] @ ... @ factors[:, 0]``.
+        ``Psi_j = D^{-1} Phi_j D``: ``Phi = D factors[:, K-1] @ ... @ factors[:, 0] D^{-1}``.
     ok : bool array of shape (n_orbits,)
     f0 : array of shape (n_orbits, n)
-        The vector field at each orbit's first point (the trivial Floquet vector).
+        ``D^{-1} f`` at each orbit's first point (the trivial Floquet vector of ``Psi``).
+    scale : array of shape (n_orbits, n)
+        The diagonal of ``D``.
     """
     periods = np.asarray(periods, dtype=float)
     ps = np.asarray(ps, dtype=float)
     n_orb = len(orbits)
     coarse = _samples(orbits, _SPREAD_SAMPLES)
-    (spread,) = _in_chunks(_spread_fn(rhs), coarse, periods, ps)
+    (J,) = _in_chunks(_jacobians_fn(rhs), coarse, periods, ps)
+    scale, spread = _balancing(J)
     need = float(np.nanmax(np.abs(periods) * spread)) / _FACTOR_GROWTH if n_orb else 1.0
     if not math.isfinite(need):
         need = _MAX_FACTORS
@@ -251,17 +276,18 @@ def monodromy_factors(
     K = n_factors
     t0 = periods[:, None] * np.arange(K)[None, :] / K
     t1 = periods[:, None] * np.arange(1, K + 1)[None, :] / K
-    Phi, ok, f = _in_chunks(
+    Psi, ok, f = _in_chunks(
         _segments_fn(rhs),
         starts.reshape(-1, n),
         t0.ravel(),
         t1.ravel(),
         np.repeat(ps, K, axis=0),
+        np.repeat(scale, K, axis=0),
         chunk=_SEGMENT_CHUNK,
     )
-    Phi = Phi.reshape(n_orb, K, n, n)
-    ok = np.all(ok.reshape(n_orb, K), axis=1) & np.all(np.isfinite(Phi), axis=(1, 2, 3))
-    return Phi, ok, f.reshape(n_orb, K, n)[:, 0]
+    Psi = Psi.reshape(n_orb, K, n, n)
+    ok = np.all(ok.reshape(n_orb, K), axis=1) & np.all(np.isfinite(Psi), axis=(1, 2, 3))
+    return Psi, ok, f.reshape(n_orb, K, n)[:, 0], scale
 
 
 # ------------------------------------------------------------ periodic eigenvalues
@@ -407,7 +433,7 @@ def floquet(
         return Floquet(
             np.empty((0, n), complex), np.empty((0, n)), np.empty(0, int), np.empty(0, bool)
         )
-    factors, ok, f0 = monodromy_factors(rhs, orbits, periods, ps)
+    factors, ok, f0, _ = monodromy_factors(rhs, orbits, periods, ps)
     good = ok & np.all(np.isfinite(f0), axis=1)
     if autonomous:
         good &= np.linalg.norm(f0, axis=1) > 0
@@ -499,21 +525,19 @@ def monodromy(
     """Monodromy matrices of a batch of orbits, formed as the product of the factors
     of :func:`monodromy_factors` (they over- or underflow on strongly contracting or
     expanding orbits: use :func:`floquet_multipliers` for the multipliers).
-
-    ``steps_per_mesh`` is accepted for compatibility and ignored (the integration is
-    error-controlled).
+    ``steps_per_mesh`` is ignored (the integration is error-controlled).
 
     Returns
     -------
     Phi : array of shape (n_orbits, n, n)
     ok : bool array of shape (n_orbits,)
     """
-    factors, ok, _ = monodromy_factors(rhs, orbits, periods, ps)
-    Phi = np.broadcast_to(np.eye(factors.shape[-1]), factors.shape[:1] + factors.shape[2:])
-    Phi = Phi.copy()
+    factors, ok, _, scale = monodromy_factors(rhs, orbits, periods, ps)
+    Psi = np.broadcast_to(np.eye(factors.shape[-1]), factors.shape[:1] + factors.shape[2:]).copy()
     with np.errstate(all="ignore"):
         for j in range(factors.shape[1]):
-            Phi = factors[:, j] @ Phi
+            Psi = factors[:, j] @ Psi
+        Phi = scale[:, :, None] * Psi / scale[:, None, :]
     return Phi, ok & np.all(np.isfinite(Phi), axis=(1, 2))
 
 

@@ -81,6 +81,18 @@ def forced_rhs(system: System, forcing: tuple[float, ...] | None = None) -> Call
 
 
 @functools.lru_cache(maxsize=32)
+def _directed_rhs(system: System) -> Callable:
+    """``(x, t, [p, b]) -> dx``, the force along ``b``: one compiled Floquet integrator for
+    a system's FRCs, S-curves and backbones (whose appropriated force has its own ``b``)."""
+    n_p, iF, iOm = len(system.parameters), system.index("F"), system.index("Omega")
+
+    def rhs(x, t, q):
+        return system.field(x, q[:n_p]) + q[n_p:] * q[iF] * jnp.cos(q[iOm] * t)
+
+    return rhs
+
+
+@functools.lru_cache(maxsize=32)
 def forced_problem(
     system: System, n_mesh: int, n_free: int, forcing: tuple[float, ...] | None = None
 ) -> ZeroProblem:
@@ -204,11 +216,15 @@ def forced_branch(
     omega = ps[:, system.index("Omega")]
     forcing_amp = ps[:, system.index("F")]
     periods = 2.0 * np.pi / omega
+    if forcing is None:  # the system's own direction
+        b = np.asarray(jax.vmap(system.forcing_direction)(jnp.asarray(ps)))
+    else:
+        b = np.broadcast_to(np.asarray(forcing, dtype=float), (len(ps), n))
     fl = floquet(
-        forced_rhs(system, forcing),
+        _directed_rhs(system),
         [np.asarray(y[: m * n]).reshape(m, n) for y, m in zip(run.ys, run.meshes, strict=True)],
         periods,
-        ps,
+        np.concatenate([ps, b], axis=1),
         autonomous=False,
     )
     mults, logm, label = fl.multipliers, fl.log_moduli, fl.stable()
@@ -463,21 +479,8 @@ def frc(
     """
     if not math.isfinite(forcing):
         raise BifidInputError(f"forcing must be finite, got {forcing!r}.")
-    return _one_parameter(
-        system,
-        "Omega",
-        omega_range,
-        {"F": forcing},
-        p,
-        n_mesh,
-        max_mesh,
-        adapt,
-        options,
-        observed,
-        progress,
-        resolution_tol,
-        "FRC",
-    )
+    mesh = (p, n_mesh, max_mesh, adapt, options, observed, progress, resolution_tol)
+    return _one_parameter(system, "Omega", omega_range, {"F": forcing}, mesh, "FRC")
 
 
 def scurve(
@@ -498,39 +501,14 @@ def scurve(
     options as in :func:`frc`)."""
     if not (math.isfinite(omega) and omega > 0):
         raise BifidInputError(f"omega must be a positive finite number, got {omega!r}.")
-    return _one_parameter(
-        system,
-        "F",
-        forcing_range,
-        {"Omega": omega},
-        p,
-        n_mesh,
-        max_mesh,
-        adapt,
-        options,
-        observed,
-        progress,
-        resolution_tol,
-        "S-curve",
-    )
+    mesh = (p, n_mesh, max_mesh, adapt, options, observed, progress, resolution_tol)
+    return _one_parameter(system, "F", forcing_range, {"Omega": omega}, mesh, "S-curve")
 
 
-def _one_parameter(
-    system,
-    param,
-    rng,
-    fixed,
-    p,
-    n_mesh,
-    max_mesh,
-    adapt,
-    options,
-    observed,
-    progress,
-    resolution_tol,
-    what,
-) -> Branch:
-    """Continuation of forced responses in ``param`` ("Omega" or "F") over ``rng``."""
+def _one_parameter(system, param, rng, fixed, settings, what) -> Branch:
+    """Continuation of forced responses in ``param`` ("Omega" or "F") over ``rng``
+    (``settings``: the keyword arguments of :func:`frc` from ``p`` on, in order)."""
+    p, n_mesh, max_mesh, adapt, options, observed, progress, resolution_tol = settings
     _require_forced(system)
     lo, hi = check_range(f"{'omega' if param == 'Omega' else 'forcing'} range", *rng)
     if param == "Omega" and min(lo, hi) <= 0:

@@ -88,10 +88,20 @@ def run_flutter_demo(
     refresh: bool = False,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Run (or reuse) every stage and write ``out/report.html``; returns the summary."""
+    """Run (or reuse) every stage and write ``out/report.html``; returns the summary.
+
+    BLAS runs on one thread throughout: the stages factorise small matrices thousands
+    of times, which a thread pool slows down many times on a loaded machine.
+    """
+    from bifid.identify._blas import one_blas_thread  # bifid.identify: seconds to import
+
+    with one_blas_thread():
+        return _run(out, settings or FlutterDemoSettings(), refresh=refresh, progress=progress)
+
+
+def _run(out: Path, cfg: FlutterDemoSettings, *, refresh: bool, progress: bool) -> dict[str, Any]:
     from bifid.demo._truth import flutter_truth, load_truth
 
-    cfg = settings or FlutterDemoSettings()
     out.mkdir(parents=True, exist_ok=True)
     cache = StageCache(out, refresh=refresh)
     st = cfg.stage_settings()

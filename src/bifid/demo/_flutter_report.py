@@ -374,7 +374,7 @@ def _prediction_section(rep, figs, errors) -> None:
     if intervals:
         sec.append(
             rep.text(
-                f"Intervals at {level:.0%} (jackknife over the measured cycles and the "
+                f"Intervals at {level:.0%} (bootstrap of the records' noise and the "
                 "ensemble over training seeds; see the uncertainty guide). At this level one "
                 "interval in twenty misses the truth by design."
             )

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import json
 import math
 from pathlib import Path
 from typing import Any
@@ -10,12 +11,14 @@ import matplotlib
 import numpy as np
 from matplotlib.figure import Figure
 
+from bifid.continuation import Diagram
 from bifid.demo._checks import FORCED_CHECKS as CHECKS
 from bifid.demo._report_common import check, finish_report
 from bifid.errors import BifidError
+from bifid.io import atomic_write_text, jsonable
 from bifid.report.plots import save_figure
 
-__all__ = ["compare", "write_report"]
+__all__ = ["compare", "load_comparison", "save_comparison", "write_report"]
 
 COLORS = ("tab:blue", "tab:orange", "tab:green", "tab:purple", "tab:brown")
 
@@ -26,7 +29,8 @@ LEVEL = 0.95
 
 def _frc_row(model, tf: dict[str, Any], cfg) -> tuple[dict[str, Any], Any]:
     """One test forcing level: the predicted FRC with its intervals at :data:`LEVEL`
-    (``predict_diagram(level=...)``), its peak and folds against the truth's."""
+    (``predict_diagram(level=...)``), its peak and folds against the truth's; the row and
+    the predicted diagram (None when the prediction failed)."""
     F = tf["forcing"]
     row: dict[str, Any] = {
         "forcing": F,
@@ -64,7 +68,7 @@ def _frc_row(model, tf: dict[str, Any], cfg) -> tuple[dict[str, Any], Any]:
         if len(tfo) == len(mfo)
         else math.inf
     )
-    return row, br
+    return row, d
 
 
 def _iv(interval) -> list[float] | None:
@@ -81,14 +85,15 @@ def compare(model, truth: dict[str, Any], tarr: dict[str, np.ndarray], cfg) -> d
     continuation of the true system."""
     rows, frcs = [], []
     for tf in truth["frcs"]:
-        row, br = _frc_row(model, tf, cfg)
+        row, d = _frc_row(model, tf, cfg)
         rows.append(row)
-        frcs.append(br)
+        frcs.append(d)
     # backbone over the trained amplitude range
     lo, hi = model.rho_range_
-    bb = model.predict_diagram(
+    bb_diagram = model.predict_diagram(
         kind="backbone", range=(max(lo, 0.05 * hi), hi), n_points=60, level=LEVEL
-    ).branches[0]
+    )
+    bb = bb_diagram.branches[0]
     tb_om, tb_a = tarr["backbone_omega"], tarr["backbone_amplitude"]
     order = np.argsort(tb_a)
     om_true = np.interp(bb.params, tb_a[order], tb_om[order])
@@ -121,8 +126,35 @@ def compare(model, truth: dict[str, Any], tarr: dict[str, np.ndarray], cfg) -> d
         "errors": err,
         "checks": checks,
         "rows": rows,
-        "frc_branches": frcs,
-        "backbone": bb,
+        "frc_diagrams": frcs,
+        "backbone_diagram": bb_diagram,
+    }
+
+
+def save_comparison(out: Path, result: dict[str, Any]) -> dict[str, Any]:
+    """Keep what :func:`compare` found: the predicted diagrams with their intervals
+    (``prediction_*.nc``) and the table (``comparison.json``); the files written."""
+    names = [
+        None if d is None else f"prediction_frc{i}.nc" for i, d in enumerate(result["frc_diagrams"])
+    ]
+    for name, d in zip(names, result["frc_diagrams"], strict=True):
+        if d is not None:
+            d.save(out / name)
+    result["backbone_diagram"].save(out / "prediction_backbone.nc")
+    facts = {k: result[k] for k in ("prediction", "errors", "checks", "rows")}
+    atomic_write_text(out / "comparison.json", json.dumps(jsonable({**facts, "frc_files": names})))
+    return {"files": [*(n for n in names if n), "prediction_backbone.nc", "comparison.json"]}
+
+
+def load_comparison(out: Path) -> dict[str, Any]:
+    """What :func:`save_comparison` kept, with the predicted branches (``frc_branches``,
+    None where the prediction failed, and ``backbone``) the figures draw."""
+    facts = json.loads((out / "comparison.json").read_text())
+    frcs = [None if f is None else Diagram.load(out / f) for f in facts.pop("frc_files")]
+    return {
+        **facts,
+        "frc_branches": [None if d is None else d.branches[0] for d in frcs],
+        "backbone": Diagram.load(out / "prediction_backbone.nc").branches[0],
     }
 
 
