@@ -294,6 +294,26 @@ def test_kernel_frc_samples_are_solved_at_the_peak() -> None:
     assert np.nanmedian(peaks) == pytest.approx(kernel_truth(K_PREDICT)["peak_amp"], rel=0.05)
 
 
+def test_kernel_intervals_widen_beyond_the_trained_forcing() -> None:
+    """Check a prediction at a forcing above the trained ones (its peak amplitude beyond
+    every trained amplitude) warns and says so by its width: the peak amplitude's 95 %
+    interval, relative to the amplitude, is wider than at the untrained forcing between
+    the trained ones, and still holds the exact peak."""
+    m = kernel_fit(0)
+    widths = {}
+    for f in (K_PREDICT, 0.013):
+        with warnings.catch_warnings(record=True) as caught:
+            warnings.simplefilter("always")
+            d = m.predict_diagram(kind="frc", forcing=f, range=(0.95, 1.2), level=0.95)
+        assert any("outside the trained range" in str(w.message) for w in caught) == (f > 0.01)
+        (peak,) = d.special("peak")
+        (lo,), (hi,) = peak.intervals["amplitude"]
+        amp = float(np.ravel(peak.data["amplitude"])[0])
+        widths[f] = (hi - lo) / amp
+        assert lo <= kernel_truth(f)["peak_amp"] <= hi
+    assert widths[0.013] > widths[K_PREDICT], widths
+
+
 def _one(v):
     """The value of a one-signal entry (``{signal: v}`` or ``v``)."""
     return next(iter(v.values())) if isinstance(v, dict) else v
