@@ -191,7 +191,33 @@ def hybrid_rows(model, truth: dict, prange: tuple[float, float], levels) -> list
         for k, (v, iv) in pts.items():
             rows[k]["estimate"] = float(v)
             rows[k]["intervals"][str(lv)] = [float(x) for x in iv]
+    for k, v in replicate_values(model).items():
+        rows[k].update(v)
     return list(rows.values())
+
+
+def replicate_values(model) -> dict[str, dict[str, list[float]]]:
+    """Per quantity of :func:`hybrid_rows`, its value on every replicate (``replicates``) and
+    on every ensemble member of the seed term (``members``), so that a tuning run can be
+    re-analysed without refitting (NaN where a replicate has no fold)."""
+    from bifid.identify.hopf_hybrid import _uncertainty as uq
+
+    st = model.state_
+    m = len(st.signal_names)
+    names = {
+        "hopf": "hopf.param",
+        "hopf_omega": "hopf.omega",
+        "fold": "fold.param",
+        "fold_amplitude": "fold.amplitude",
+    }
+
+    def values(states) -> dict[str, list[float]]:
+        q = [uq.point_quantities(s, j, m) for s, j in states]
+        return {k: [float(np.ravel(r[v])[0]) for r in q] for k, v in names.items()}
+
+    jack = values([(r, 0) for r in model.replicates_])
+    members = values([(st, s) for s in uq.seed_members(model)])
+    return {k: {"replicates": jack[k], "members": members[k]} for k in names}
 
 
 # ------------------------------------------------------------------- replications
@@ -238,7 +264,7 @@ def hybrid_flutter_records(ka3_factor: float, noise: float, seed: int) -> list[t
 
 
 def hybrid_flutter_replication(ka3_factor: float, noise: float, seed: int, levels) -> list[dict]:
-    """One hybrid fit (with its jackknife) on fresh noise and a fresh training seed; the
+    """One hybrid fit (with its bootstrap) on fresh noise and a fresh training seed; the
     intervals at ``levels``."""
     from bifid.identify import HopfHybridModel
 

@@ -192,8 +192,8 @@ def fit_hopf_cmd(
         float | None,
         typer.Option(
             "--level",
-            help="Also retrain without each orbit in turn (jackknife) so the model has "
-            "intervals; report the Hopf point's and cycle fold's at this level.",
+            help="Also retrain on resamplings of the records' noise (bootstrap) so the model "
+            "has intervals; report the Hopf point's and cycle fold's at this level.",
         ),
     ] = None,
     plot: PlotOpt = None,

@@ -31,16 +31,16 @@ def _errors(folds: list[dict[str, Any]], names: tuple[str, ...]) -> dict[str, An
     }
 
 
-def refit_without(model: Any, data: LCOData, i: int, warm: bool = False) -> Any:
-    """A copy of ``model`` trained on ``data`` without record ``i``: one ensemble member,
-    the regularisation, stopping, criticality, quintic term and plane selected by
-    ``model`` fixed. Record ``i`` keeps its slot with weight 0 (the compiled training loops
-    are reused; only the normalisation constants of the parameter and signals see it, so
-    they are those of the full fit).
+def refit_without(model: Any, data: LCOData, i: int | None, warm: bool = False) -> Any:
+    """A copy of ``model`` trained on ``data`` without record ``i`` (``None``: on all of
+    them): one ensemble member, the regularisation, stopping, criticality, quintic term and
+    plane selected by ``model`` fixed. Record ``i`` keeps its slot with weight 0 (the
+    compiled training loops are reused; only the normalisation constants of the parameter
+    and signals see it, so they are those of the full fit).
 
     With ``warm``, the coordinate map starts from the full fit's reported (primary) member
     and trains for the same number of iterations: the refit stays in the full fit's basin
-    of the training loss (the jackknife of the intervals, :mod:`._uncertainty`). Without
+    of the training loss (the bootstrap of the intervals, :mod:`._uncertainty`). Without
     it, a cold start from the model's seed (the cross-validation of :func:`leave_one_out`).
 
     Raises
@@ -64,7 +64,10 @@ def refit_without(model: Any, data: LCOData, i: int, warm: bool = False) -> Any:
     with one_blas_thread(), warnings.catch_warnings():
         warnings.simplefilter("ignore", ConvergenceWarning)
         init = member(st.map_params, st.primary) if warm else None
-        fold_model._fit(data, np.arange(len(data)) != i, init)
+        active = np.ones(len(data), dtype=bool)
+        if i is not None:
+            active[i] = False
+        fold_model._fit(data, active, init)
     return fold_model
 
 

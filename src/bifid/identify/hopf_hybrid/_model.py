@@ -30,7 +30,7 @@ from bifid.identify.hopf_hybrid._hyper import check_hyperparameters
 from bifid.identify.hopf_hybrid._normal_form import raw_a2
 from bifid.identify.hopf_hybrid._prepare import measured_amplitude, prepare
 from bifid.identify.hopf_hybrid._speed_stage import PhaseMatcher, speed_config, train_speed
-from bifid.identify.hopf_hybrid._state import HybridState, states_from_json, states_to_json
+from bifid.identify.hopf_hybrid._state import HybridState, states_to_json
 from bifid.identify.hopf_hybrid._timing import StageTimer, progress_bar
 from bifid.identify.hopf_hybrid._train import (
     configure,
@@ -200,10 +200,10 @@ class HopfHybridModel(IdentifiedModel):
         signal_names : sequence of str, optional
             Names of the signals of bare records.
         uncertainty : bool
-            Also retrain the model without each orbit in turn (one member each, the
-            selected hyperparameters fixed: on the order of the fit's own time), so that
-            ``predict_diagram(level=...)`` gives intervals and :meth:`summary` standard
-            errors (jackknife and ensemble, :mod:`._uncertainty`).
+            Also retrain the model on resamplings of the records' noise (one member
+            each, the selected hyperparameters fixed: on the order of the fit's own time),
+            so that ``predict_diagram(level=...)`` gives intervals and :meth:`summary`
+            standard errors (bootstrap and ensemble, :mod:`._uncertainty`).
 
         Returns
         -------
@@ -223,9 +223,9 @@ class HopfHybridModel(IdentifiedModel):
         self.replicates_: list[HybridState] = []
         if uncertainty:
             t0 = time.perf_counter()
-            self.replicates_ = uq.jackknife(self, data)
-            self.timings_["jackknife"] = time.perf_counter() - t0
-            self.timings_["total"] += self.timings_["jackknife"]
+            self.replicates_ = uq.bootstrap(self, data)
+            self.timings_["bootstrap"] = time.perf_counter() - t0
+            self.timings_["total"] += self.timings_["bootstrap"]
         return self
 
     def _fit(self, data: LCOData, active: np.ndarray, init: Any = None) -> HopfHybridModel:
@@ -447,7 +447,7 @@ class HopfHybridModel(IdentifiedModel):
         return hybrid_diagram(st, st.primary, lo, hi, query.n_points, self.model_type)
 
     def _add_intervals(self, diagram: Diagram, query: DiagramQuery, level: float) -> None:
-        """Jackknife-and-ensemble intervals (:func:`._uncertainty.add_intervals`), with a
+        """Bootstrap-and-ensemble intervals (:func:`._uncertainty.add_intervals`), with a
         warning where the prediction leaves the trained parameter range."""
         trained = (float(np.min(self.training_["param"])), float(np.max(self.training_["param"])))
         warn_extrapolation(self.state_.param_name, self._range(query.range), trained, 4)
@@ -584,17 +584,17 @@ class HopfHybridModel(IdentifiedModel):
 
     def _state(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
         settings, arrays = self.state_.to_json()
-        replicates, rep_arrays = states_to_json(self.replicates_, "jackknife")
+        replicates, rep_arrays = states_to_json(self.replicates_, "bootstrap")
         arrays.update(rep_arrays)
         arrays.update({f"training_{k}": np.asarray(v) for k, v in self.training_.items()})
         fitted = {k: getattr(self, f"{k}_") for k in self._FITTED}
-        return {"model": settings, "fitted": fitted, "jackknife": replicates}, arrays
+        return {"model": settings, "fitted": fitted, "bootstrap": replicates}, arrays
 
     def _restore(self, state: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
         self.state_ = HybridState.from_json(state["model"], arrays)
         for k in self._FITTED:
             setattr(self, f"{k}_", state["fitted"][k])
-        self.replicates_ = states_from_json(state.get("jackknife", []), arrays, "jackknife")
+        self.replicates_ = uq.saved_replicates(state, arrays)
         self.training_ = {
             k: np.asarray(arrays[f"training_{k}"])
             for k in ("param", "stable", "amplitude", "frequency")

@@ -1,68 +1,93 @@
-r"""Intervals of a fitted hybrid model: jackknife over the measured orbits combined with the
-ensemble over training seeds.
+r"""Intervals of a fitted hybrid model: bootstrap of the measurement noise at the measured
+orbits combined with the ensemble over training seeds.
 
-**Replicates.** With the hyperparameters the fit selected held fixed (L2 weight, stopping
-iteration, criticality, quintic term, plane), the model is retrained :math:`n` times, each
-time without one of the :math:`n` measured orbits (:func:`~._cv.refit_without`, one
-ensemble member each). A quantity :math:`q` (Hopf speed and frequency, cycle-fold speed,
-period and amplitudes, the amplitude of a branch at fixed parameter, :math:`\mu_0`,
-:math:`a_2`, :math:`\omega_0`) is read off every replicate, :math:`q_{(i)}`, and off the
-ensemble members of the full fit, :math:`q^{(s)}`.
+**What varies.** The measured orbits sit at parameter values the experimenter chose; what
+changes from one campaign at those values to the next is the noise on every sample (and,
+through the optimiser, where training stops). So the replicates resample the noise and keep
+the orbits (a residual bootstrap for a fixed design, Efron & Tibshirani 1993, §9.5). Each
+record :math:`x_i(t_j)` of orbit :math:`i` (all signals, samples :math:`j = 1..N_i`) is
+split into its periodic part, the least-squares Fourier series of
+:data:`NOISE_HARMONICS` harmonics at the record's frequency :math:`\omega_i`
+(:func:`bifid.signal.fourier_fit`), and the residual:
+
+.. math:: x_i(t_j) = \hat p_i(t_j) + \hat e_{ij},\qquad
+    x^{*b}_i(t_j) = \hat p_i(t_j) + \sqrt{\frac{N_i}{N_i - P}}\;\hat e_{i J_{ij}^b},\qquad
+    J_{ij}^b \sim \mathcal U\{1..N_i\},
+
+a bootstrap record draws the residuals of the same record with replacement (one draw per
+sample, all signals of a sample together, so their correlation is kept; the noise is
+taken as white over time), inflated for the :math:`P = 2K + 1` coefficients of the
+series fitted to them (modified residuals, Davison & Hinkley 1997, eq. 6.9, with the
+leverage :math:`P/N_i` of a Fourier basis on uniform samples; 12 % on a record of 200
+samples, nothing on the rig's thousands). The model is retrained on every bootstrap dataset
+:math:`b = 1..B` (:data:`N_BOOTSTRAP`) with the hyperparameters the fit selected held fixed
+(L2 weight, stopping iteration, criticality, quintic term, plane; one ensemble member,
+:func:`~._cv.refit_without` on all orbits), and a quantity :math:`q` (Hopf speed and
+frequency, cycle-fold speed, period and amplitudes, the amplitude of a branch at fixed
+parameter, :math:`\mu_0`, :math:`a_2`, :math:`\omega_0`) is read off every replicate,
+:math:`q^{*b}`, and off the ensemble members of the full fit, :math:`q^{(s)}`.
+
+**Why not the orbits.** A jackknife over the orbits (refits without one orbit each)
+measures how the estimate depends on *which* orbits were measured: its
+variance :math:`\frac{n-1}{n}\sum_i (q_{(i)} - \bar q_{(\cdot)})^2` scales every
+replicate's shift by :math:`n - 1`, and without the orbit nearest to the Hopf point the
+Hopf point is an extrapolation. On the flutter model (eight orbits, records of 2 s at
+5 kHz, 1 % noise) that shift is real but deterministic — the refit without the stable
+orbit nearest the Hopf point put it 0.02–0.06 m/s below the other refits on every one of
+ten datasets (on one, −0.044 m/s from the fit, and −0.032 m/s after three times the
+iterations: not an optimiser artefact) — while the noise moves the estimate by a few mm/s, and the
+jackknife's 95 % intervals were 13 to 100 times as wide as the median errors
+(``bench_calibration.py --tune-hybrid``). The bootstrap keeps the design and varies what
+does vary.
 
 **Replicates measure the data, not the optimiser.** The estimator is a local minimiser
-:math:`\hat\theta` of the training loss :math:`L(\theta) = \sum_j w_j \ell_j(\theta) +
-\lambda\|\theta_{NN}\|^2` of the coordinate map, and the jackknife linearises it around
-:math:`\hat\theta`: with orbit :math:`i` left out, the minimiser in the same basin is
+:math:`\hat\theta` of the training loss of the coordinate map; a refit from a random
+initialisation may land in another local minimum, and one such replicate would set the
+variance alone. Every refit therefore starts from the full fit's reported member and
+trains with the full fit's own iteration budget (L-BFGS) on the resampled records: a
+descent from :math:`\hat\theta` that stays in its basin (the oscillation-speed and
+observation stages are refitted as in the full fit). Likewise the seed term counts only
+the members in the best optimum: a member whose final training loss exceeds
+:math:`(1 + \tau)` times the best member's (:data:`LOSS_TOLERANCE`, :math:`\tau = 1`) is a
+different local minimum, not seed variability of the reported estimator, and is left out
+(the reported member always counts).
 
-.. math:: \hat\theta_{(i)} \approx \hat\theta + w_i H^{-1}\nabla\ell_i(\hat\theta),
-    \qquad H = \nabla^2 L(\hat\theta),
-
-the influence of orbit :math:`i`. A cold start from a random initialisation may instead
-land in another local minimum, and one such replicate then sets the sum of squares below
-alone (on the flutter model, refits 0.16–0.48 m/s away from five others that agree within
-0.006 m/s). Every refit therefore starts from the full fit's reported member and trains
-the map with the full fit's own iteration budget (L-BFGS) on the loss without orbit
-:math:`i`: a descent from :math:`\hat\theta` that stays in its basin and converges to
-:math:`\hat\theta_{(i)}` (the oscillation-speed and observation stages are refitted as
-in the full fit, on the refit's phases). A shorter run does not get there: with 100
-iterations instead of 540 the jackknife standard error of the flutter model's Hopf speed
-was two thirds of the converged one (0.0084 against 0.0128 m/s on one dataset).
-Likewise the seed term counts only the members in the best optimum: a member whose final
-training loss exceeds :math:`(1 + \tau)` times the best member's (:data:`LOSS_TOLERANCE`,
-:math:`\tau = 1`) is a different local minimum, not seed variability of the reported
-estimator, and is left out (the reported member always counts; on that flutter dataset,
-the member left out had 700 times the loss of the other two, which differ by 6 %).
-
-**Variance.** The jackknife variance of the data (Efron & Stein) and the variance over
-training seeds add:
+**Variance.** The bootstrap variance of the noise and the variance over training seeds
+add:
 
 .. math::
 
-    \hat v_J = \frac{n-1}{n}\sum_{i=1}^{n}\bigl(q_{(i)} - \bar q_{(\cdot)}\bigr)^2,\qquad
+    \hat v_B = \frac{1}{B-1}\sum_{b=1}^{B}\bigl(q^{*b} - \bar q^{*}\bigr)^2,\qquad
     \hat v_S = \frac{1}{S-1}\sum_{s=1}^{S}\bigl(q^{(s)} - \bar q\bigr)^2,\qquad
-    \mathrm{se}(q) = \sqrt{\hat v_J + \hat v_S}.
+    \mathrm{se}(q) = \sqrt{\hat v_B + \hat v_S}.
 
 **Interval.** Around the prediction :math:`\hat q` of the primary member,
 
-.. math:: \hat q \pm c\, t_{(1+\ell)/2,\,\nu}\,\mathrm{se}(q),\qquad \nu = \frac{n-1}{2},
+.. math:: \hat q \pm c\, t_{(1+\ell)/2,\,\nu}\,\mathrm{se}(q),\qquad
+    \nu = \frac{B - 1}{2},
 
-Student's :math:`t` with half the :math:`n-1` degrees of freedom of the jackknife
-(:data:`DOF_FRACTION`) and a calibration factor :math:`c = 1.03` (:data:`SCALE`), both
-read off a tuning run of ``benchmarks/bench_calibration.py --tune-hybrid`` (simulated
-diagrams with known truth, seeds not used to report coverage): the standardised errors
-:math:`|\hat q - q|/\mathrm{se}` have heavier tails than :math:`t_{n-1}` (the jackknife
-variance of eight replicates is itself a noisy estimate), and their quantiles at 50, 80,
-90, 95 and 99 % are those of :math:`c\,t_{(n-1)/2}` with :math:`c` between 0.94 and 1.03
-at every level, where :math:`t_{n-1}` would need factors rising from 1.02 to 1.39;
-:math:`c` is the ratio at 95 %. The reported coverage is measured on other seeds
-(docs/uncertainty.md). A replicate without the quantity (no fold, no cycle at that
-parameter) is left out; with fewer than two replicates left, or where a replicate has no
-cycle on the branch at that parameter (near a fold, within its interval), the interval is
-undefined (NaN).
+Student's :math:`t` with half the bootstrap variance's :math:`B - 1` degrees of freedom
+(:data:`DOF_FRACTION`) and a calibration factor :math:`c` (:data:`SCALE`), both read off
+tuning seeds of ``benchmarks/bench_calibration.py`` (simulated diagrams with known truth,
+seeds not used to report coverage; docs/uncertainty.md): the standardised errors
+:math:`|\hat q - q|/\mathrm{se}` have heavier tails than :math:`t_{B-1}` (the seed term
+rests on two or three members, the bootstrap variance on eight refits), and their
+quantiles at 50, 80, 90, 95 and 99 % are those of :math:`c\,t_{(B-1)/2}` with factors
+between 0.86 and 1.21; :math:`c` is the one at 95 %.
+
+**Limits.** The bootstrap does not see a bias of the model (the coordinate map's
+approximation error, the extrapolation beyond the measured orbits): on the flutter model
+the cycle fold's speed is 0.01–0.04 m/s low on most datasets, up to four bootstrap
+standard errors. Nor does it see noise that is correlated over time (drift, coloured
+noise), which the white resampling treats as independent. A replicate without the
+quantity (no fold, no cycle at that parameter) is left out; with fewer than two replicates
+left, or where a replicate has no cycle on the branch at that parameter (near a fold,
+within its interval), the interval is undefined (NaN).
 """
 
 from __future__ import annotations
 
+import dataclasses
 import math
 import warnings
 from typing import Any
@@ -70,52 +95,91 @@ from typing import Any
 import numpy as np
 
 from bifid.continuation import Diagram
-from bifid.errors import ConvergenceError
+from bifid.errors import ConvergenceError, ConvergenceWarning
 from bifid.identify._intervals import critical_value
 from bifid.identify._records import LCOData
 from bifid.identify.hopf_hybrid import _cycles as cy
 from bifid.identify.hopf_hybrid._cv import refit_without
 from bifid.identify.hopf_hybrid._normal_form import raw_a2
-from bifid.identify.hopf_hybrid._state import HybridState
+from bifid.identify.hopf_hybrid._state import HybridState, states_from_json
+from bifid.signal import evaluate_series, fourier_fit
 
 __all__ = [
     "DOF_FRACTION",
     "LOSS_TOLERANCE",
+    "NOISE_HARMONICS",
+    "N_BOOTSTRAP",
     "SCALE",
     "add_intervals",
-    "jackknife",
+    "bootstrap",
     "named_standard_errors",
+    "noise_split",
     "omega0",
     "point_quantities",
     "seed_members",
     "standard_errors",
 ]
 
-#: calibration factor of the jackknife intervals (module docstring), read off the tuning run
-#: of the calibration benchmark (seeds 0..17 per case) at 95 %, validated on other seeds
-SCALE = 1.03
+#: calibration factor of the intervals (module docstring), read off the tuning seeds of the
+#: calibration benchmark at 95 %, validated on other seeds
+SCALE = 1.05
 
-#: the Student-t degrees of freedom of an interval are this fraction of the jackknife's
-#: n - 1 (module docstring): the standardised errors of the tuning run follow t_{(n-1)/2}
+#: the Student-t degrees of freedom of an interval are this fraction of the bootstrap's
+#: B - 1 (module docstring): the standardised errors of the tuning seeds follow t_{(B-1)/2}
 DOF_FRACTION = 0.5
+
+#: bootstrap replicates: refits on resampled noise (module docstring)
+N_BOOTSTRAP = 8
+
+#: harmonics of a record's periodic part, as in its measured amplitude
+NOISE_HARMONICS = 20
 
 #: an ensemble member whose final training loss exceeds the best member's by more than this
 #: fraction sits in another optimum and is left out of the seed term (module docstring)
 LOSS_TOLERANCE = 1.0
 
 
-def jackknife(model: Any, data: LCOData) -> list[HybridState]:
-    """The replicates: ``model`` retrained without each record of ``data`` in turn, warm
-    from the full fit (:func:`~._cv.refit_without`, module docstring). A refit that does
-    not converge is left out, with a warning."""
+def noise_split(data: LCOData) -> list[tuple[np.ndarray, np.ndarray]]:
+    """Per record, its periodic part :math:`\\hat p_i` (Fourier series at the record's
+    frequency) and its residual :math:`\\hat e_i` inflated by :math:`\\sqrt{N_i/(N_i - P)}`
+    (module docstring); a record without a frequency is kept as it is (zero residual)."""
     out = []
-    for i in range(len(data)):
+    for x, w, fs in zip(data.signals, data.frequency, data.sample_rate, strict=True):
+        if not (math.isfinite(w) and w > 0):
+            out.append((x, np.zeros_like(x)))
+            continue
+        theta = w * np.arange(len(x)) / fs
+        coefs = [fourier_fit(x[:, k], w, fs, NOISE_HARMONICS) for k in range(x.shape[1])]
+        p = np.stack([evaluate_series(c, theta) for c in coefs], axis=1)
+        n, n_coef = len(x), len(coefs[0])
+        inflate = math.sqrt(n / (n - n_coef)) if n > n_coef else 1.0
+        out.append((p, inflate * (x - p)))
+    return out
+
+
+def resample_noise(
+    data: LCOData, split: list[tuple[np.ndarray, np.ndarray]], rng: np.random.Generator
+) -> LCOData:
+    """``data`` with every record's residuals drawn with replacement from its own
+    (:func:`noise_split`; the samples of all signals at one time together)."""
+    signals = tuple(p + e[rng.integers(len(e), size=len(e))] for p, e in split)
+    return dataclasses.replace(data, signals=signals)
+
+
+def bootstrap(model: Any, data: LCOData, n: int = N_BOOTSTRAP) -> list[HybridState]:
+    """The replicates: ``model`` retrained on ``n`` resamplings of the noise of ``data``,
+    warm from the full fit (:func:`~._cv.refit_without`, module docstring), seeded by the
+    model's ``seed``. A refit that does not converge is left out, with a warning."""
+    rng = np.random.default_rng(model.seed)
+    split = noise_split(data)
+    out = []
+    for b in range(n):
         try:
-            out.append(refit_without(model, data, i, warm=True).state_)
+            out.append(refit_without(model, resample_noise(data, split, rng), None, True).state_)
         except ConvergenceError as exc:
             warnings.warn(
-                f"the refit without record {i} ({data.param_name}={data.param[i]:g}) did not "
-                f"converge and is left out of the intervals ({exc}).",
+                f"the refit on bootstrap sample {b} did not converge and is left out of the "
+                f"intervals ({exc}).",
                 UserWarning,
                 stacklevel=3,
             )
@@ -161,20 +225,20 @@ def point_quantities(state: HybridState, s: int, n_signals: int) -> dict[str, np
     }
 
 
-def _se(jack: np.ndarray, seeds: np.ndarray) -> tuple[np.ndarray, int]:
-    """Standard error :math:`\\sqrt{\\hat v_J + \\hat v_S}` along axis 0 and the jackknife's
-    degrees of freedom; NaN where fewer than two replicates are finite."""
-    jack = np.asarray(jack, dtype=float)
-    n = np.sum(np.isfinite(jack), axis=0)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = np.nanmean(np.where(np.isfinite(jack), jack, np.nan), axis=0)
-        vj = (n - 1) / n * np.nansum((jack - mean) ** 2, axis=0)
+def _se(boot: np.ndarray, seeds: np.ndarray) -> tuple[np.ndarray, int]:
+    """Standard error :math:`\\sqrt{\\hat v_B + \\hat v_S}` along axis 0 and the bootstrap's
+    degrees of freedom :math:`B - 1`; NaN where fewer than two replicates are finite."""
+    boot = np.asarray(boot, dtype=float)
+    n = np.sum(np.isfinite(boot), axis=0)
+    with np.errstate(invalid="ignore", divide="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # fewer than two finite: NaN below
+        vb = np.nanvar(np.where(np.isfinite(boot), boot, np.nan), axis=0, ddof=1)
     seeds = np.asarray(seeds, dtype=float)
-    vs = np.zeros_like(vj)
+    vs = np.zeros_like(vb)
     if seeds.shape[0] > 1:
         ok = np.all(np.isfinite(seeds), axis=0)
         vs = np.where(ok, np.var(np.where(np.isfinite(seeds), seeds, 0.0), axis=0, ddof=1), 0.0)
-    se = np.where(n >= 2, np.sqrt(vj + vs), np.nan)
+    se = np.where(n >= 2, np.sqrt(vb + vs), np.nan)
     return se, int(np.max(n)) - 1 if np.size(n) else 0
 
 
@@ -192,12 +256,12 @@ def standard_errors(
     """``se`` of the named scalar quantities of :func:`point_quantities` (module docstring),
     the seed term over ``members`` (default: all)."""
     m = len(state.signal_names)
-    jack = _collect([(r, 0) for r in replicates], m)
+    boot = _collect([(r, 0) for r in replicates], m)
     members = list(range(state.n_members)) if members is None else members
     seeds = _collect([(state, s) for s in members], m)
     out = {}
     for k in keys:
-        se, _ = _se(jack[k], seeds[k])
+        se, _ = _se(boot[k], seeds[k])
         out[k] = float(se)
     return out
 
@@ -242,7 +306,7 @@ def add_intervals(diagram: Diagram, model: Any, level: float) -> None:
     state, replicates = model.state_, model.replicates_
     members = seed_members(model)
     m = len(state.signal_names)
-    jack = _collect([(r, 0) for r in replicates], m)
+    boot = _collect([(r, 0) for r in replicates], m)
     seeds = _collect([(state, s) for s in members], m)
     for b in diagram.branches:
         for sp in b.special_points:
@@ -258,7 +322,7 @@ def add_intervals(diagram: Diagram, model: Any, level: float) -> None:
                 continue
             for key, value in values.items():
                 q = f"{'hopf' if sp.kind == 'hopf' else 'fold'}.{key}"
-                se, dof = _se(jack[q], seeds[q])
+                se, dof = _se(boot[q], seeds[q])
                 sp.intervals[key] = _interval(value, se, dof, level)
         if b.kind != "periodic" or not len(b):
             continue
@@ -272,3 +336,19 @@ def add_intervals(diagram: Diagram, model: Any, level: float) -> None:
         lo, hi = _interval(amp, se, dof, level)
         b.intervals["amplitude"] = (np.asarray(lo), np.asarray(hi))
     diagram.level = level
+
+
+def saved_replicates(state: dict[str, Any], arrays: dict[str, np.ndarray]) -> list[HybridState]:
+    """The bootstrap replicates of a saved model (``state["bootstrap"]``). A model saved
+    with the orbit-jackknife replicates of earlier versions loads without them (their
+    variance is another formula: reading them as bootstrap replicates would give wrong
+    intervals), with a warning: refit it with ``uncertainty=True`` for intervals."""
+    if "jackknife" in state:
+        warnings.warn(
+            "this model was saved with jackknife replicates, which this version does not "
+            "read (its intervals come from a bootstrap of the records' noise): it loads "
+            "without intervals; refit it with intervals (`bifid fit hopf ... --level`).",
+            ConvergenceWarning,
+            stacklevel=4,
+        )
+    return states_from_json(state.get("bootstrap", []), arrays, "bootstrap")
