@@ -30,7 +30,7 @@ from bifid.identify.hopf_hybrid._hyper import check_hyperparameters
 from bifid.identify.hopf_hybrid._normal_form import raw_a2
 from bifid.identify.hopf_hybrid._prepare import measured_amplitude, prepare
 from bifid.identify.hopf_hybrid._speed_stage import PhaseMatcher, speed_config, train_speed
-from bifid.identify.hopf_hybrid._state import HybridState, states_to_json
+from bifid.identify.hopf_hybrid._state import HybridState
 from bifid.identify.hopf_hybrid._timing import StageTimer, progress_bar
 from bifid.identify.hopf_hybrid._train import (
     configure,
@@ -584,18 +584,16 @@ class HopfHybridModel(IdentifiedModel):
 
     def _state(self) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
         settings, arrays = self.state_.to_json()
-        replicates, rep_arrays = states_to_json(self.replicates_, "bootstrap")
+        replicates, rep_arrays = uq.replicates_to_json(self.replicates_)
         arrays.update(rep_arrays)
         arrays.update({f"training_{k}": np.asarray(v) for k, v in self.training_.items()})
         fitted = {k: getattr(self, f"{k}_") for k in self._FITTED}
-        return {"model": settings, "fitted": fitted, "bootstrap": replicates}, arrays
+        return {"model": settings, "fitted": fitted, **replicates}, arrays
 
     def _restore(self, state: dict[str, Any], arrays: dict[str, np.ndarray]) -> None:
         self.state_ = HybridState.from_json(state["model"], arrays)
         for k in self._FITTED:
             setattr(self, f"{k}_", state["fitted"][k])
         self.replicates_ = uq.saved_replicates(state, arrays)
-        self.training_ = {
-            k: np.asarray(arrays[f"training_{k}"])
-            for k in ("param", "stable", "amplitude", "frequency")
-        }
+        prefix = "training_"
+        self.training_ = {k[len(prefix) :]: v for k, v in arrays.items() if k.startswith(prefix)}

@@ -101,7 +101,7 @@ from bifid.identify._records import LCOData
 from bifid.identify.hopf_hybrid import _cycles as cy
 from bifid.identify.hopf_hybrid._cv import refit_without
 from bifid.identify.hopf_hybrid._normal_form import raw_a2
-from bifid.identify.hopf_hybrid._state import HybridState, states_from_json
+from bifid.identify.hopf_hybrid._state import HybridState, states_from_json, states_to_json
 from bifid.signal import evaluate_series, fourier_fit
 
 __all__ = [
@@ -336,6 +336,15 @@ def add_intervals(diagram: Diagram, model: Any, level: float) -> None:
         lo, hi = _interval(amp, se, dof, level)
         b.intervals["amplitude"] = (np.asarray(lo), np.asarray(hi))
     diagram.level = level
+
+
+def replicates_to_json(
+    states: list[HybridState],
+) -> tuple[dict[str, list[dict[str, Any]]], dict[str, np.ndarray]]:
+    """The bootstrap replicates as a saved model holds them (``{"bootstrap": settings}``
+    and arrays ``bootstrap{i}_*``; read back by :func:`saved_replicates`)."""
+    settings, arrays = states_to_json(states, "bootstrap")
+    return {"bootstrap": settings}, arrays
 
 
 def saved_replicates(state: dict[str, Any], arrays: dict[str, np.ndarray]) -> list[HybridState]:
