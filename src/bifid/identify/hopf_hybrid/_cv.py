@@ -13,7 +13,7 @@ from bifid.identify._records import LCOData
 from bifid.identify.hopf_hybrid._prepare import measured_amplitude, prepare
 from bifid.identify.hopf_hybrid._state import member
 
-__all__ = ["leave_one_out", "refit_without"]
+__all__ = ["leave_one_out", "refit"]
 
 
 def _errors(folds: list[dict[str, Any]], names: tuple[str, ...]) -> dict[str, Any]:
@@ -31,10 +31,10 @@ def _errors(folds: list[dict[str, Any]], names: tuple[str, ...]) -> dict[str, An
     }
 
 
-def refit_without(model: Any, data: LCOData, i: int | None, warm: bool = False) -> Any:
-    """A copy of ``model`` trained on ``data`` without record ``i`` (``None``: on all of
-    them): one ensemble member, the regularisation, stopping, criticality, quintic term and
-    plane selected by ``model`` fixed. Record ``i`` keeps its slot with weight 0 (the
+def refit(model: Any, data: LCOData, leave_out: int | None = None, warm: bool = False) -> Any:
+    """A copy of ``model`` trained on ``data`` (without record ``leave_out`` if given): one
+    ensemble member, the regularisation, stopping, criticality, quintic term and
+    plane selected by ``model`` fixed. A left-out record keeps its slot with weight 0 (the
     compiled training loops are reused; only the normalisation constants of the parameter
     and signals see it, so they are those of the full fit).
 
@@ -65,8 +65,8 @@ def refit_without(model: Any, data: LCOData, i: int | None, warm: bool = False) 
         warnings.simplefilter("ignore", ConvergenceWarning)
         init = member(st.map_params, st.primary) if warm else None
         active = np.ones(len(data), dtype=bool)
-        if i is not None:
-            active[i] = False
+        if leave_out is not None:
+            active[leave_out] = False
         fold_model._fit(data, active, init)
     return fold_model
 
@@ -99,7 +99,7 @@ def leave_one_out(model: Any, data: LCOData) -> dict[str, Any]:
     )
     folds = []
     for i in range(len(data)):
-        fold_model = refit_without(model, data, i)
+        fold_model = refit(model, data, leave_out=i)
         omega_i = float(prep_all.omega[i])
         meas = measured_amplitude(data.signals[i], omega_i, data.sample_rate[i])
         stable = bool(data.stable[i] != 0)

@@ -22,7 +22,7 @@ leverage :math:`P/N_i` of a Fourier basis on uniform samples; 12 % on a record o
 samples, nothing on the rig's thousands). The model is retrained on every bootstrap dataset
 :math:`b = 1..B` (:data:`N_BOOTSTRAP`) with the hyperparameters the fit selected held fixed
 (L2 weight, stopping iteration, criticality, quintic term, plane; one ensemble member,
-:func:`~._cv.refit_without` on all orbits), and a quantity :math:`q` (Hopf speed and
+:func:`~._cv.refit` on all orbits), and a quantity :math:`q` (Hopf speed and
 frequency, cycle-fold speed, period and amplitudes, the amplitude of a branch at fixed
 parameter, :math:`\mu_0`, :math:`a_2`, :math:`\omega_0`) is read off every replicate,
 :math:`q^{*b}`, and off the ensemble members of the full fit, :math:`q^{(s)}`.
@@ -99,7 +99,7 @@ from bifid.errors import ConvergenceError, ConvergenceWarning
 from bifid.identify._intervals import critical_value
 from bifid.identify._records import LCOData
 from bifid.identify.hopf_hybrid import _cycles as cy
-from bifid.identify.hopf_hybrid._cv import refit_without
+from bifid.identify.hopf_hybrid._cv import refit
 from bifid.identify.hopf_hybrid._normal_form import raw_a2
 from bifid.identify.hopf_hybrid._state import HybridState, states_from_json, states_to_json
 from bifid.signal import evaluate_series, fourier_fit
@@ -168,14 +168,14 @@ def resample_noise(
 
 def bootstrap(model: Any, data: LCOData, n: int = N_BOOTSTRAP) -> list[HybridState]:
     """The replicates: ``model`` retrained on ``n`` resamplings of the noise of ``data``,
-    warm from the full fit (:func:`~._cv.refit_without`, module docstring), seeded by the
+    warm from the full fit (:func:`~._cv.refit`, module docstring), seeded by the
     model's ``seed``. A refit that does not converge is left out, with a warning."""
     rng = np.random.default_rng(model.seed)
     split = noise_split(data)
     out = []
     for b in range(n):
         try:
-            out.append(refit_without(model, resample_noise(data, split, rng), None, True).state_)
+            out.append(refit(model, resample_noise(data, split, rng), warm=True).state_)
         except ConvergenceError as exc:
             warnings.warn(
                 f"the refit on bootstrap sample {b} did not converge and is left out of the "
