@@ -169,6 +169,31 @@ def test_save_load_round_trip(model, tmp_path):
     assert loaded.summary()["parameters"] == model.summary()["parameters"]
 
 
+def test_training_record_holds_the_measured_orbits(model):
+    """Check that the fit records every orbit's parameter, frequency and amplitude
+    ``max_t |z_k|`` against their analytic values."""
+    mus = [*STABLE, *UNSTABLE]
+    stable = [True] * len(STABLE) + [False] * len(UNSTABLE)
+    np.testing.assert_array_equal(model.training_["param"], mus)
+    np.testing.assert_array_equal(model.training_["stable"], stable)
+    np.testing.assert_allclose(model.training_["frequency"], OMEGA, rtol=1e-3)
+    expected = [amplitude(mu, st) for mu, st in zip(mus, stable, strict=True)]
+    np.testing.assert_allclose(model.training_["amplitude"], expected, rtol=1e-3)
+
+
+def test_bootstrap_refits_keep_the_selected_harmonics():
+    """Check that the refits of the intervals keep the number of polar harmonics the fit
+    chose: chosen afresh on these records with their noise resampled, it ranges from 4 to
+    20 (another model on every such refit)."""
+    short = dict(n_linear=20, n_lbfgs=20, omega_fit_iterations=50, omega_iterations=0)
+    m = HopfHybridModel(**{**FAST, **short, "n_harmonics": "auto", "n_ensemble": 1})
+    m.fit(records(noise=0.01, seed=0), signal_names=NAMES, uncertainty=True)
+    chosen = m.state_.map_config.n_harmonics
+    assert 4 <= chosen <= 32
+    assert len(m.replicates_) == 8
+    assert [r.map_config.n_harmonics for r in m.replicates_] == [chosen] * 8
+
+
 def test_load_rejects_other_model_types(tmp_path):
     """Check that loading a model of another type is a clear input error."""
     from bifid.io import save_model

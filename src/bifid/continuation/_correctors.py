@@ -46,8 +46,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.linalg
-from threadpoolctl import threadpool_limits
 
+from bifid.continuation._blas import one_blas_thread
 from bifid.continuation._krylov import gmres
 
 Array = jnp.ndarray
@@ -472,7 +472,7 @@ def correct(
         Max-norm of ``G`` at the returned point.
     """
     corrector = NewtonCorrector(problem, tol=tol, max_iter=max_iter)
-    with threadpool_limits(1, user_api="blas"):
+    with one_blas_thread():
         r = corrector.correct(
             np.asarray(y_guess, dtype=float), np.asarray(row, dtype=float), float(c), args
         )

@@ -72,8 +72,8 @@ import jax
 import jax.numpy as jnp
 import numpy as np
 import scipy.linalg
-from threadpoolctl import threadpool_limits
 
+from bifid.continuation._blas import one_blas_thread
 from bifid.errors import BifidInputError
 from bifid.signal import evaluate_fourier, fourier_coefficients
 
@@ -487,7 +487,7 @@ def collocation_floquet(operators: Sequence[np.ndarray], n: int) -> Floquet:
     logm = np.full((N, n), np.nan)
     trivial = np.zeros(N, int)
     ok = np.zeros(N, bool)
-    with threadpool_limits(1):
+    with one_blas_thread(user_api=None):
         for i, L in enumerate(operators):
             L = np.asarray(L, dtype=float)
             if not np.all(np.isfinite(L)):

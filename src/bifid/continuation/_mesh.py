@@ -32,8 +32,8 @@ from dataclasses import dataclass, field, replace
 from typing import Any
 
 import numpy as np
-from threadpoolctl import threadpool_limits
 
+from bifid.continuation._blas import one_blas_thread
 from bifid.continuation._options import ContinuationOptions
 from bifid.continuation._palc import (
     Continuation,
@@ -228,7 +228,7 @@ def run_adaptive(
     step control (a factor < 1 rejects the step).
     """
     runner = _Runner(stage_of, policy, options, n_states, stop, monitor, progress)
-    with threadpool_limits(1, user_api="blas"):
+    with one_blas_thread():
         out = runner.run(
             np.asarray(y0, dtype=float), np.asarray(t0, dtype=float), M0 or policy.n_mesh
         )

@@ -31,8 +31,8 @@ from typing import Any
 
 import jax.numpy as jnp
 import numpy as np
-from threadpoolctl import threadpool_limits
 
+from bifid.continuation._blas import one_blas_thread
 from bifid.continuation._correctors import (
     AbstractCorrector,
     Correction,
@@ -493,7 +493,7 @@ def palc(
     )
     # Single-threaded BLAS: these dense systems are small, and a multi-threaded OpenBLAS
     # on a loaded machine is 10-30x slower (threads spin against each other).
-    with threadpool_limits(1, user_api="blas"):
+    with one_blas_thread():
         return driver.run(y0, t0, args, correct_start=correct_start, progress=progress)
 
 

@@ -72,7 +72,7 @@ def run_forced_demo(
     BLAS runs on one thread throughout: the stages factorise small matrices thousands
     of times, which a thread pool slows down many times on a loaded machine.
     """
-    from bifid.identify._blas import one_blas_thread  # bifid.identify: seconds to import
+    from bifid.continuation._blas import one_blas_thread  # bifid.continuation: slow to import
 
     with one_blas_thread():
         return _run(out, settings or ForcedDemoSettings(), refresh=refresh, progress=progress)

@@ -7,10 +7,10 @@ from typing import Any
 
 import numpy as np
 
+from bifid.continuation._blas import one_blas_thread
 from bifid.errors import BifidInputError, ConvergenceWarning
-from bifid.identify._blas import one_blas_thread
 from bifid.identify._records import LCOData
-from bifid.identify.hopf_hybrid._prepare import measured_amplitude, prepare
+from bifid.identify.hopf_hybrid._prepare import Preprocessing, measured_amplitude, prepare
 from bifid.identify.hopf_hybrid._state import member
 
 __all__ = ["leave_one_out", "refit"]
@@ -31,12 +31,20 @@ def _errors(folds: list[dict[str, Any]], names: tuple[str, ...]) -> dict[str, An
     }
 
 
-def refit(model: Any, data: LCOData, leave_out: int | None = None, warm: bool = False) -> Any:
+def refit(
+    model: Any,
+    data: LCOData,
+    leave_out: int | None = None,
+    warm: bool = False,
+    pre: Preprocessing | None = None,
+) -> Any:
     """A copy of ``model`` trained on ``data`` (without record ``leave_out`` if given): one
-    ensemble member, the regularisation, stopping, criticality, quintic term and
-    plane selected by ``model`` fixed. A left-out record keeps its slot with weight 0 (the
-    compiled training loops are reused; only the normalisation constants of the parameter
-    and signals see it, so they are those of the full fit).
+    ensemble member, the regularisation, stopping, criticality, quintic term, plane and
+    number of polar harmonics selected by ``model`` fixed. A left-out record keeps its slot
+    with weight 0 (the compiled training loops are reused; only the normalisation constants
+    of the parameter and signals see it, so they are those of the full fit). ``pre``: the
+    :class:`~._prepare.Preprocessing` of ``data`` when several refits share the records
+    (computed otherwise).
 
     With ``warm``, the coordinate map starts from the full fit's reported (primary) member
     and trains for the same number of iterations: the refit stays in the full fit's basin
@@ -58,6 +66,8 @@ def refit(model: Any, data: LCOData, leave_out: int | None = None, warm: bool = 
         criticality=model.criticality_,
         quintic=bool(st.q5),
         plane=tuple(st.signal_names[k] for k in st.plane),
+        n_harmonics=st.map_config.n_harmonics,
+        n_points=st.map_config.n_points,
         progress=False,
     )
     fold_model = type(model)(**hyper)
@@ -67,7 +77,7 @@ def refit(model: Any, data: LCOData, leave_out: int | None = None, warm: bool = 
         active = np.ones(len(data), dtype=bool)
         if leave_out is not None:
             active[leave_out] = False
-        fold_model._fit(data, active, init)
+        fold_model._fit(data, active, init, pre)
     return fold_model
 
 
@@ -98,8 +108,9 @@ def leave_one_out(model: Any, data: LCOData) -> dict[str, Any]:
         white=st.white,
     )
     folds = []
+    pre = Preprocessing(data)  # the folds train on the same records
     for i in range(len(data)):
-        fold_model = refit(model, data, leave_out=i)
+        fold_model = refit(model, data, leave_out=i, pre=pre)
         omega_i = float(prep_all.omega[i])
         meas = measured_amplitude(data.signals[i], omega_i, data.sample_rate[i])
         stable = bool(data.stable[i] != 0)

@@ -16,9 +16,9 @@ from typing import Any
 import numpy as np
 
 from bifid.continuation import Diagram
+from bifid.continuation._blas import one_blas_thread
 from bifid.errors import BifidInputError
 from bifid.identify._base import DiagramQuery, IdentifiedModel, Orbit
-from bifid.identify._blas import one_blas_thread
 from bifid.identify._intervals import warn_extrapolation
 from bifid.identify._persistence import register_model_type
 from bifid.identify._records import LCOData, as_lco_data
@@ -28,8 +28,8 @@ from bifid.identify.hopf_hybrid._cv import leave_one_out
 from bifid.identify.hopf_hybrid._diagram import ensemble_spread, hybrid_diagram, spread
 from bifid.identify.hopf_hybrid._hyper import check_hyperparameters
 from bifid.identify.hopf_hybrid._normal_form import raw_a2
-from bifid.identify.hopf_hybrid._prepare import measured_amplitude, prepare
-from bifid.identify.hopf_hybrid._speed_stage import PhaseMatcher, speed_config, train_speed
+from bifid.identify.hopf_hybrid._prepare import Preprocessing, measured_amplitudes
+from bifid.identify.hopf_hybrid._speed_stage import PhaseMatcher, speed_stage
 from bifid.identify.hopf_hybrid._state import HybridState
 from bifid.identify.hopf_hybrid._timing import StageTimer, progress_bar
 from bifid.identify.hopf_hybrid._train import (
@@ -220,6 +220,9 @@ class HopfHybridModel(IdentifiedModel):
         data = as_lco_data(dataset, signal_names)
         with one_blas_thread():
             self._fit(data, np.ones(len(data), dtype=bool))
+            t0 = time.perf_counter()
+            self.training_["amplitude"] = measured_amplitudes(data, self.training_["frequency"])
+            self.timings_["total"] += time.perf_counter() - t0
         self.replicates_: list[HybridState] = []
         if uncertainty:
             t0 = time.perf_counter()
@@ -228,14 +231,22 @@ class HopfHybridModel(IdentifiedModel):
             self.timings_["total"] += self.timings_["bootstrap"]
         return self
 
-    def _fit(self, data: LCOData, active: np.ndarray, init: Any = None) -> HopfHybridModel:
-        """Fit on the records ``active`` (others keep their slot, weight 0), map from ``init``."""
+    def _fit(
+        self,
+        data: LCOData,
+        active: np.ndarray,
+        init: Any = None,
+        pre: Preprocessing | None = None,
+    ) -> HopfHybridModel:
+        """Fit on the records ``active`` (others keep their slot, weight 0), map from ``init``,
+        the records' preprocessing from ``pre`` (their :class:`~._prepare.Preprocessing`)."""
         t_start = time.perf_counter()
         if len(data) < 2 or not data.has_records:
             raise BifidInputError(
                 f"The hybrid Hopf model needs at least 2 limit-cycle records with samples; got "
                 f"{len(data)}{'' if data.has_records else ' without samples'}."
             )
+        pre = pre or Preprocessing(data)
         setup = configure(
             data,
             plane=self.plane,
@@ -249,8 +260,9 @@ class HopfHybridModel(IdentifiedModel):
             n_adam=self.n_adam,
             n_lbfgs=self.n_lbfgs,
             learning_rate=self.learning_rate,
+            preprocessing=pre,
         )
-        prep = prepare(data, setup.plane, setup.n_harmonics)
+        prep = pre.prepared(setup.plane, setup.n_harmonics)
         timer = StageTimer()
         with progress_bar(self.progress, 4, "hopf_hybrid") as tick:
             grid = (
@@ -281,7 +293,9 @@ class HopfHybridModel(IdentifiedModel):
             )
             tick("map: ensemble")
             matcher = PhaseMatcher(map_params, setup.map_config, prep, active, data.param_name)
-            scfg, speed = self._train_speed(prep, setup, matcher, active, primary, timer)
+            speed = speed_stage(
+                self.get_params(), prep, setup.map_config, matcher, active, primary, timer
+            )
             tick("oscillation speed")
             n_members = int(np.asarray(map_params["mu0"]).shape[0])
             order = [primary] + [s for s in range(n_members) if s != primary]
@@ -298,7 +312,7 @@ class HopfHybridModel(IdentifiedModel):
             tick("other signals")
         self.state_ = HybridState(
             map_config=setup.map_config,
-            speed_config=scfg,
+            speed_config=speed.config,
             map_params=map_params,
             speed_params=speed.params,
             observation=observation,
@@ -326,62 +340,12 @@ class HopfHybridModel(IdentifiedModel):
         self.speed_cv_ = speed.cv
         self.losses_ = {**losses, "speed": speed.losses}
         idx = np.nonzero(active)[0]
-        self.training_ = {
-            "param": data.param[idx],
-            "stable": data.stable[idx],
-            "amplitude": np.array(
-                [
-                    measured_amplitude(data.signals[i], prep.omega[i], data.sample_rate[i])
-                    for i in idx
-                ]
-            ),
-            "frequency": prep.omega[idx],
-        }
+        # the measured amplitudes are added by fit (a refit does not need them)
+        self.training_ = {k: v[idx] for k, v in (("param", data.param), ("stable", data.stable))}
+        self.training_["frequency"] = prep.omega[idx]
         self.timings_ = {k: float(v) for k, v in timer.times.items()}
         self.timings_["total"] = time.perf_counter() - t_start
         return self
-
-    def _train_speed(
-        self,
-        prep: Any,
-        setup: Any,
-        matcher: PhaseMatcher,
-        active: np.ndarray,
-        primary: int,
-        timer: StageTimer,
-    ) -> tuple[Any, Any]:
-        """The oscillation-speed stage (eqs. 5.10–5.13) with this model's hyperparameters."""
-        scfg = speed_config(
-            self.omega_harmonics,
-            self.omega_width,
-            self.omega_depth,
-            self.omega_fit_iterations,
-            self.omega_iterations,
-            self.omega_learning_rate,
-            self.omega_form,
-            setup.map_config,
-            prep,
-            self.omega_periods,
-            self.omega_samples,
-        )
-        grid = (
-            self.omega_regularization_grid
-            if self.omega_regularization == "cv"
-            else (self.omega_regularization,)
-        )
-        speed = train_speed(
-            prep,
-            matcher,
-            active,
-            primary,
-            config=scfg,
-            periods=self.omega_periods,
-            samples=self.omega_samples,
-            regularization_grid=grid,
-            seed=self.seed,
-            timer=timer,
-        )
-        return scfg, speed
 
     # ---------------------------------------------------------------- fitted numbers
     def hopf_point(self, member: int | None = None) -> dict[str, Any]:

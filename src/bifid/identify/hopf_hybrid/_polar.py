@@ -79,24 +79,29 @@ def polygon_centroid_np(pts: np.ndarray) -> np.ndarray:
     return np.sum((pts + nxt) * cross[:, None], axis=0) / (6.0 * area)
 
 
-def polar_coefficients(pts: np.ndarray, centre: np.ndarray, n_harmonics: int) -> np.ndarray:
-    r"""Least-squares Fourier coefficients :math:`\Phi(R)` of :math:`R(\theta)` about ``centre``
-    (the pseudo-inverse variant of eq. 5.6, :func:`bifid.signal.fourier_project`).
+def polar_coefficients(
+    d: np.ndarray, n_harmonics: int, theta: np.ndarray | None = None
+) -> np.ndarray:
+    r"""Least-squares Fourier coefficients :math:`\Phi(R)` of :math:`R(\theta)` (the
+    pseudo-inverse variant of eq. 5.6, :func:`bifid.signal.fourier_project`).
 
     Parameters
     ----------
-    pts : array of shape (K, 2)
-        Points on the curve (any number of turns, any spacing).
-    centre : array of shape (2,)
+    d : array of shape (K, 2)
+        Points on the curve minus the centre (any number of turns, any spacing).
     n_harmonics : int
+    theta : array of shape (K,), optional
+        The polar angles ``arctan2(d[:, 1], d[:, 0])`` if computed before.
 
     Returns
     -------
     ndarray of shape (2 * n_harmonics + 1,)
         ``[a0, a1..an, b1..bn]``.
     """
-    d = np.asarray(pts, dtype=float) - np.asarray(centre, dtype=float)[None, :]
-    return fourier_project(np.hypot(d[:, 0], d[:, 1]), np.arctan2(d[:, 1], d[:, 0]), n_harmonics)
+    d = np.asarray(d, dtype=float)
+    if theta is None:
+        theta = np.arctan2(d[:, 1], d[:, 0])
+    return fourier_project(np.hypot(d[:, 0], d[:, 1]), theta, n_harmonics)
 
 
 def polar_mismatch(pts: Array, centre: Array, coef: Array, n_harmonics: int) -> Array:

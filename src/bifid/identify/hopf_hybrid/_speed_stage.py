@@ -12,7 +12,7 @@ from __future__ import annotations
 import math
 import time
 import warnings
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 from typing import Any
 
@@ -29,7 +29,7 @@ from bifid.identify.hopf_hybrid._state import member, plane_angles, stack
 from bifid.identify.hopf_hybrid._timing import StageTimer
 from bifid.signal import evaluate_series, fourier_project
 
-__all__ = ["PhaseMatcher", "SpeedFit", "train_speed"]
+__all__ = ["PhaseMatcher", "SpeedFit", "speed_stage", "train_speed"]
 
 
 class PhaseMatcher:
@@ -298,4 +298,43 @@ def speed_config(
         form=form,
         map_width=map_config.width,
         map_depth=map_config.depth,
+    )
+
+
+def speed_stage(
+    hyper: Mapping[str, Any],
+    prep: Prepared,
+    map_config: hm.MapConfig,
+    matcher: PhaseMatcher,
+    active: np.ndarray,
+    primary: int,
+    timer: StageTimer,
+) -> SpeedFit:
+    """The oscillation-speed stage (eqs. 5.10–5.13) with the ``omega_*`` hyperparameters
+    and ``seed`` of an estimator (``hyper``: its ``get_params()``)."""
+    scfg = speed_config(
+        hyper["omega_harmonics"],
+        hyper["omega_width"],
+        hyper["omega_depth"],
+        hyper["omega_fit_iterations"],
+        hyper["omega_iterations"],
+        hyper["omega_learning_rate"],
+        hyper["omega_form"],
+        map_config,
+        prep,
+        hyper["omega_periods"],
+        hyper["omega_samples"],
+    )
+    lam = hyper["omega_regularization"]
+    return train_speed(
+        prep,
+        matcher,
+        active,
+        primary,
+        config=scfg,
+        periods=hyper["omega_periods"],
+        samples=hyper["omega_samples"],
+        regularization_grid=hyper["omega_regularization_grid"] if lam == "cv" else (lam,),
+        seed=hyper["seed"],
+        timer=timer,
     )

@@ -25,7 +25,7 @@ from bifid.identify._records import LCOData
 from bifid.identify.hopf_hybrid import _map as hm
 from bifid.identify.hopf_hybrid._normal_form import INNER, lco_radius2
 from bifid.identify.hopf_hybrid._observe import POINTS_PER_ORBIT, ObservationModel, fit_observation
-from bifid.identify.hopf_hybrid._prepare import Prepared, choose_harmonics
+from bifid.identify.hopf_hybrid._prepare import Prepared, Preprocessing
 from bifid.identify.hopf_hybrid._state import member, stack, u12_batch
 from bifid.identify.hopf_hybrid._timing import StageTimer
 
@@ -59,8 +59,10 @@ def configure(
     n_adam: int,
     n_lbfgs: int,
     learning_rate: float,
+    preprocessing: Preprocessing | None = None,
 ) -> Setup:
-    """The plane, criticality, quintic term and map configuration for ``data``.
+    """The plane, criticality, quintic term and map configuration for ``data``
+    (``n_harmonics="auto"``: chosen by ``preprocessing``, the data's :class:`Preprocessing`).
 
     Raises
     ------
@@ -101,7 +103,10 @@ def configure(
             "cycles and a fold; set quintic=True or criticality='supercritical'."
         )
     plane_ = (idx[0], idx[1])
-    nh = choose_harmonics(data, plane_) if n_harmonics == "auto" else int(n_harmonics)
+    if n_harmonics == "auto":
+        nh = (preprocessing or Preprocessing(data)).harmonics(plane_)
+    else:
+        nh = int(n_harmonics)
     npts = max(64, 8 * math.ceil((4 * nh + 8) / 8)) if n_points == "auto" else int(n_points)
     if npts < 4 * nh + 2:
         raise BifidInputError(f"n_points ({npts}) must be >= 4 * n_harmonics + 2 = {4 * nh + 2}.")

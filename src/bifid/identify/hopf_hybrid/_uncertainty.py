@@ -8,7 +8,7 @@ the orbits (a residual bootstrap for a fixed design, Efron & Tibshirani 1993, §
 record :math:`x_i(t_j)` of orbit :math:`i` (all signals, samples :math:`j = 1..N_i`) is
 split into its periodic part, the least-squares Fourier series of
 :data:`NOISE_HARMONICS` harmonics at the record's frequency :math:`\omega_i`
-(:func:`bifid.signal.fourier_fit`), and the residual:
+(:func:`bifid.signal.fourier_fit`, :func:`._prepare.record_series`), and the residual:
 
 .. math:: x_i(t_j) = \hat p_i(t_j) + \hat e_{ij},\qquad
     x^{*b}_i(t_j) = \hat p_i(t_j) + \sqrt{\frac{N_i}{N_i - P}}\;\hat e_{i J_{ij}^b},\qquad
@@ -21,11 +21,23 @@ series fitted to them (modified residuals, Davison & Hinkley 1997, eq. 6.9, with
 leverage :math:`P/N_i` of a Fourier basis on uniform samples; 12 % on a record of 200
 samples, nothing on the rig's thousands). The model is retrained on every bootstrap dataset
 :math:`b = 1..B` (:data:`N_BOOTSTRAP`) with the hyperparameters the fit selected held fixed
-(L2 weight, stopping iteration, criticality, quintic term, plane; one ensemble member,
-:func:`~._cv.refit` on all orbits), and a quantity :math:`q` (Hopf speed and
-frequency, cycle-fold speed, period and amplitudes, the amplitude of a branch at fixed
-parameter, :math:`\mu_0`, :math:`a_2`, :math:`\omega_0`) is read off every replicate,
-:math:`q^{*b}`, and off the ensemble members of the full fit, :math:`q^{(s)}`.
+(L2 weight, stopping iteration, criticality, quintic term, plane, number of polar
+harmonics; one ensemble member, :func:`~._cv.refit` on all orbits), and a quantity
+:math:`q` (Hopf speed and frequency, cycle-fold speed, period and amplitudes, the
+amplitude of a branch at fixed parameter, :math:`\mu_0`, :math:`a_2`, :math:`\omega_0`) is
+read off every replicate, :math:`q^{*b}`, and off the ensemble members of the full fit,
+:math:`q^{(s)}`.
+
+**What a replicate recomputes.** Everything that reads the resampled samples: the
+normalisation and whitening of the plane, each orbit's whole turns, centroid, polar
+coefficients, covariance and frequency (:mod:`._prepare`), and all training stages. A
+replicate is therefore the fit a from-scratch training with those hyperparameters would
+compute on the resampled records, with one exception by design: the number of polar
+harmonics (``n_harmonics="auto"``) is the fit's. Chosen afresh it reads the noise floor
+of the resampled records and jumps (on the flutter calibration datasets 8 for the fit, 7
+or 15 for some replicates; on noisy analytic cycles anywhere from 4 to 20), so such a
+replicate would be another model, not the same estimator on other noise. The records'
+measured amplitudes, which only the reported model keeps, are not recomputed.
 
 **Why not the orbits.** A jackknife over the orbits (refits without one orbit each)
 measures how the estimate depends on *which* orbits were measured: its
@@ -101,8 +113,8 @@ from bifid.identify._records import LCOData
 from bifid.identify.hopf_hybrid import _cycles as cy
 from bifid.identify.hopf_hybrid._cv import refit
 from bifid.identify.hopf_hybrid._normal_form import raw_a2
+from bifid.identify.hopf_hybrid._prepare import record_series
 from bifid.identify.hopf_hybrid._state import HybridState, states_from_json, states_to_json
-from bifid.signal import evaluate_series, fourier_fit
 
 __all__ = [
     "DOF_FRACTION",
@@ -148,9 +160,8 @@ def noise_split(data: LCOData) -> list[tuple[np.ndarray, np.ndarray]]:
         if not (math.isfinite(w) and w > 0):
             out.append((x, np.zeros_like(x)))
             continue
-        theta = w * np.arange(len(x)) / fs
-        coefs = [fourier_fit(x[:, k], w, fs, NOISE_HARMONICS) for k in range(x.shape[1])]
-        p = np.stack([evaluate_series(c, theta) for c in coefs], axis=1)
+        coefs, basis = record_series(x, w, fs, NOISE_HARMONICS)
+        p = np.stack([basis @ c for c in coefs], axis=1)  # the series at the samples
         n, n_coef = len(x), len(coefs[0])
         inflate = math.sqrt(n / (n - n_coef)) if n > n_coef else 1.0
         out.append((p, inflate * (x - p)))

@@ -16,9 +16,9 @@ import jax.numpy as jnp
 import numpy as np
 
 from bifid.continuation import Diagram
+from bifid.continuation._blas import one_blas_thread
 from bifid.errors import BifidInputError, ConvergenceError
 from bifid.identify._base import DiagramQuery, IdentifiedModel, Orbit
-from bifid.identify._blas import one_blas_thread
 from bifid.identify._intervals import Covariance, warn_extrapolation
 from bifid.identify._persistence import register_model_type
 from bifid.identify._records import LCOData, as_lco_data

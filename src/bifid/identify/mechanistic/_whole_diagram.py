@@ -29,8 +29,8 @@ import jax.numpy as jnp
 import numpy as np
 
 from bifid.continuation import Branch
+from bifid.continuation._blas import one_blas_thread
 from bifid.errors import BifidInputError, ConvergenceError, ConvergenceWarning
-from bifid.identify._blas import one_blas_thread
 from bifid.identify._least_squares import LeastSquaresResult, least_squares
 from bifid.identify._records import LCOData
 from bifid.identify.mechanistic._branch import (
