@@ -8,9 +8,12 @@ rig's state where the rig can save it, the failures with their reasons, and a di
 the settings that define the campaign. Every record also carries the checkpoint taken
 when it was recorded (``extra["cbc_state"]``).
 
-The file is rewritten atomically at every checkpoint (:func:`bifid.data.save_dataset`),
-so an interruption — SIGINT or SIGKILL — leaves the last checkpoint, never a torn file;
-the temporary files of a killed write are removed when the campaign resumes.
+Every checkpoint replaces the file atomically, so an interruption — SIGINT or SIGKILL —
+leaves the last checkpoint, never a torn file; the temporary files of a killed write are
+removed when the campaign resumes. A checkpoint costs what its new records cost (and a
+copy of the file's bytes): the records already in the file are neither rebuilt nor
+recompressed (:func:`bifid.data.append_records`), the new ones are added and the state
+replaced.
 Numbers are stored as JSON, whose float representation round-trips exactly, so a resumed
 campaign continues from bit-identical numbers.
 """
@@ -28,6 +31,7 @@ from typing import Any
 import numpy as np
 
 from bifid.data import (
+    append_records,
     forced_dataset,
     forced_records,
     lco_dataset,
@@ -136,6 +140,8 @@ class CampaignFile:
         self.path = Path(path)
         self.kind = kind
         self.kw = dict(dataset_kwargs)
+        # the records in the file, in order, each with the state it was written with
+        self._written: list[tuple[Any, Any]] = []
 
     def clean(self) -> list[Path]:
         """Remove the temporary files that a killed write left beside the file."""
@@ -174,6 +180,7 @@ class CampaignFile:
                 f"--resume: {self.path} has a malformed campaign state."
             ) from None
         records = lco_records(ds) if self.kind == "lco" else forced_records(ds)
+        self._written = [(r, r.extra.get("cbc_state")) for r in records]
         if int(checkpoint.get("n_records", 0)) > len(records) and records:
             # records were removed after the last checkpoint: continue from the state the
             # last remaining record carries
@@ -186,12 +193,29 @@ class CampaignFile:
                 ) from None
         return records, checkpoint, ds
 
+    def _on_file(self, records: Sequence[Any]) -> int:
+        """How many of ``records`` lead the file as they are (the same objects, unchanged)."""
+        n = 0
+        for rec, (done, state) in zip(records, self._written, strict=False):
+            if rec is not done or rec.extra.get("cbc_state") != state:
+                break
+            n += 1
+        return n
+
     def write(self, records: Sequence[Any], checkpoint: Mapping[str, Any]) -> None:
-        """Write all records and the checkpoint, atomically (nothing without a record)."""
+        """Write the records and the checkpoint, atomically (nothing without a record).
+
+        The records already in the file stay as written; the file's records after them
+        (recorded after the checkpoint a campaign resumed from) are dropped.
+        """
         if not records:
             return
-        builder = lco_dataset if self.kind == "lco" else forced_dataset
         attrs = dict(self.kw.get("attrs") or {})
         attrs["cbc_campaign"] = json.dumps(to_json(dict(checkpoint)))
-        ds = builder(list(records), **{**self.kw, "attrs": attrs})
-        save_dataset(ds, self.path)
+        kept = self._on_file(records) if self.path.exists() else 0
+        if kept:
+            append_records(self.path, records[kept:], keep=kept, attrs=attrs)
+        else:
+            builder = lco_dataset if self.kind == "lco" else forced_dataset
+            save_dataset(builder(list(records), **{**self.kw, "attrs": attrs}), self.path)
+        self._written = [(r, r.extra.get("cbc_state")) for r in records]

@@ -9,8 +9,9 @@ Two dataset kinds, stored as netCDF-4 (xarray + h5netcdf), schema in
   :func:`forced_dataset`, :func:`forced_records`).
 
 :func:`save_dataset` writes atomically, :func:`load_dataset` validates everything and
-raises :class:`~bifid.errors.BifidInputError` on any malformed file, :func:`append_record`
-adds one record at a time (for CBC campaigns).
+raises :class:`~bifid.errors.BifidInputError` on any malformed file, :func:`append_records`
+and :func:`append_record` add records to a file without rewriting those it holds (CBC
+campaigns save after every point).
 
 Importers: :func:`import_files` (what ``bifid import`` runs: format detection, MATLAB
 files of the flutter rig and the electromagnetic oscillator, CSV in bifid's schema);
@@ -19,6 +20,7 @@ loaders of the files that are not limit-cycle records: :func:`load_free_decay`,
 :func:`load_thesis_curves`.
 """
 
+from bifid.data._append import append_record, append_records
 from bifid.data._csv import ThesisCurve, load_thesis_curves, read_csv_dataset, write_csv
 from bifid.data._em_rig import em_dataset, read_em_curve
 from bifid.data._flutter_rig import (
@@ -38,7 +40,6 @@ from bifid.data._import import FORMATS, detect_format, expand_paths, import_file
 from bifid.data._iterate import forced_records, lco_records
 from bifid.data._matlab import load_mat
 from bifid.data._netcdf import (
-    append_record,
     combine_datasets,
     forced_dataset,
     lco_dataset,
@@ -59,6 +60,7 @@ __all__ = [
     "ThesisCurve",
     "ULCOAmplitudes",
     "append_record",
+    "append_records",
     "combine_datasets",
     "detect_format",
     "em_dataset",

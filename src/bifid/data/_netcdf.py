@@ -1,8 +1,9 @@
-"""Datasets: build from records, save/load as netCDF (h5netcdf), append, iterate.
+"""Datasets: build from records, save/load as netCDF (h5netcdf), combine.
 
 Schema (details in ``docs/data-formats.md``): dims ``record``, ``time``, ``signal``;
 records shorter than the longest are NaN-padded along ``time`` and ``n_samples`` gives
 each valid length. ``bifid_kind`` ("lco" | "forced") selects the kind-specific variables.
+Appending records to a file: :mod:`bifid.data._append`.
 """
 
 from __future__ import annotations
@@ -17,16 +18,16 @@ from typing import Any
 import numpy as np
 import xarray as xr
 
+from bifid.data._growable import GROWING, growable_image
 from bifid.data._hdf5check import check_self_contained
 from bifid.data._iterate import forced_records, lco_records
 from bifid.data._records import ForcedRecord, LCORecord
 from bifid.data._validate import EXTRA_PREFIX, parse_json_attr, validate_dataset
 from bifid.errors import BifidInputError
-from bifid.io import atomic_write_netcdf, check_input_file, jsonable
+from bifid.io import atomic_write_bytes, check_input_file, jsonable
 from bifid.signal import phase_lag
 
 __all__ = [
-    "append_record",
     "combine_datasets",
     "forced_dataset",
     "lco_dataset",
@@ -36,6 +37,8 @@ __all__ = [
 
 # refuse to load more than this into memory (hostile files can declare huge dimensions)
 MAX_DATASET_BYTES = int(os.environ.get("BIFID_MAX_DATASET_BYTES", 4 * 1024**3))
+TIME_CHUNK = 16384  # samples per chunk of a sampled signal (128 KiB of float64)
+RECORD_CHUNK = 256  # records per chunk of the per-record variables
 _RESERVED_ATTRS = {
     "bifid_kind",
     "system",
@@ -361,22 +364,39 @@ def forced_dataset(
 # ---------------------------------------------------------------------------------------------
 
 
+def _chunks(var: xr.Variable) -> tuple[int, ...]:
+    """Chunk shape of a per-record variable: one record of a sampled signal (a power of two
+    from ``TIME_CHUNK / 4`` to ``TIME_CHUNK`` samples: records appended later may be
+    longer), or ``RECORD_CHUNK`` records of the others."""
+    if "time" not in var.dims:
+        return tuple(RECORD_CHUNK if d == "record" else var.sizes[d] for d in var.dims)
+    n_time = min(TIME_CHUNK, max(TIME_CHUNK // 4, 1 << (var.sizes["time"] - 1).bit_length()))
+    return tuple(n_time if d == "time" else 1 for d in var.dims)
+
+
 def save_dataset(ds: xr.Dataset, path: str | os.PathLike[str]) -> Path:
     """Validate ``ds`` and write it to ``path`` as netCDF-4 (h5netcdf), atomically.
 
     The file is built in memory and appears only once complete (temporary file +
-    :func:`os.replace`, :func:`bifid.io.atomic_write_netcdf`); on any failure, a full disk
+    :func:`os.replace`, :func:`bifid.io.atomic_write_bytes`); on any failure, a full disk
     included, the previous file, if any, is untouched. Sampled signals are compressed
     (deflate level 1 after the byte-shuffle filter, both standard netCDF-4: on noisy
-    float64 records shuffling makes deflate 1.7x faster and the file 13 % smaller).
+    float64 records shuffling makes deflate 1.7x faster and the file 13 % smaller), in
+    chunks of one record and at most ``TIME_CHUNK`` samples of one signal; ``record`` and
+    ``time`` can be extended (:mod:`bifid.data._growable`), so
+    :func:`bifid.data.append_records` adds records without rewriting the others.
     """
     ds = validate_dataset(ds, "save_dataset")
     path = Path(path)
-    encoding = {}
+    encoding: dict[str, dict[str, Any]] = {}
     for name, var in ds.variables.items():
+        if "record" not in var.dims:
+            continue
+        encoding[name] = {"chunksizes": _chunks(var)}
         if var.dtype.kind == "f" and var.ndim >= 2:
-            encoding[name] = {"zlib": True, "complevel": 1, "shuffle": True}
-    atomic_write_netcdf(ds, path, encoding=encoding)
+            encoding[name].update(zlib=True, complevel=1, shuffle=True)
+    image = ds.to_netcdf(None, engine="h5netcdf", encoding=encoding, unlimited_dims=GROWING)
+    atomic_write_bytes(path, growable_image(image))
     return path
 
 
@@ -418,14 +438,6 @@ def load_dataset(path: str | os.PathLike[str]) -> xr.Dataset:
     return validate_dataset(ds, where)
 
 
-def _kind_of(record: Any) -> str:
-    if isinstance(record, LCORecord):
-        return "lco"
-    if isinstance(record, ForcedRecord):
-        return "forced"
-    raise BifidInputError(f"append_record takes an LCORecord or ForcedRecord, got {type(record)}.")
-
-
 def _builder_kwargs(ds: xr.Dataset) -> dict[str, Any]:
     kind = ds.attrs["bifid_kind"]
     kw: dict[str, Any] = {
@@ -443,77 +455,6 @@ def _builder_kwargs(ds: xr.Dataset) -> dict[str, Any]:
         kw["observed"] = ds.attrs["observed"]
         kw["forcing_units"] = ds.attrs.get("forcing_units", "")
     return kw
-
-
-def append_record(
-    path: str | os.PathLike[str], record: LCORecord | ForcedRecord, **dataset_kwargs: Any
-) -> xr.Dataset:
-    """Add one record to the dataset file at ``path`` (created if missing); atomic rewrite.
-
-    Meant for CBC campaigns that save each point as soon as it converges: an interruption
-    leaves the file with every earlier point and never a half-written file.
-
-    Parameters
-    ----------
-    path
-        Dataset file.
-    record
-        :class:`LCORecord` or :class:`ForcedRecord`.
-    **dataset_kwargs
-        Arguments of :func:`lco_dataset` / :func:`forced_dataset` (``signal_names`` is
-        required to create the file). For an existing file they must agree with it
-        (``signal_names``, ``param_name``, ``observed``); the file's attributes are kept.
-
-    Returns
-    -------
-    xarray.Dataset
-        The dataset as written.
-
-    Raises
-    ------
-    BifidInputError
-        A record of the other kind, different signal names or count, or a malformed file.
-    """
-    kind = _kind_of(record)
-    path = Path(path)
-    builder = lco_dataset if kind == "lco" else forced_dataset
-    if not path.exists():
-        if "signal_names" not in dataset_kwargs:
-            raise BifidInputError(
-                f"{path} does not exist yet: pass signal_names=... (and the other dataset "
-                "arguments) to create it."
-            )
-        ds = builder([record], **dataset_kwargs)
-        save_dataset(ds, path)
-        return ds
-    old = load_dataset(path)
-    old_kind = old.attrs["bifid_kind"]
-    if old_kind != kind:
-        raise BifidInputError(
-            f"{path} holds {old_kind!r} records; cannot append a {type(record).__name__}."
-        )
-    kw = _builder_kwargs(old)
-    for key in ("signal_names", "param_name", "observed"):
-        if key in dataset_kwargs and key in kw:
-            given = dataset_kwargs[key]
-            given = [str(s) for s in given] if key == "signal_names" else str(given)
-            if given != kw[key]:
-                raise BifidInputError(
-                    f"{path} has {key}={kw[key]!r}; cannot append a record with {key}={given!r}."
-                )
-    if record.signals.shape[1] != len(kw["signal_names"]):
-        raise BifidInputError(
-            f"{path} has {len(kw['signal_names'])} signals {kw['signal_names']}; the record "
-            f"has {record.signals.shape[1]}."
-        )
-    records = (lco_records(old) if kind == "lco" else forced_records(old)) + [record]
-    created = old.attrs.get("created")
-    ds = builder(records, **kw)
-    if created:
-        ds.attrs["created"] = created
-    ds.attrs["modified"] = time.strftime("%Y-%m-%dT%H:%M:%SZ", time.gmtime())
-    save_dataset(ds, path)
-    return ds
 
 
 def combine_datasets(datasets: Sequence[xr.Dataset], source: str | None = None) -> xr.Dataset:
