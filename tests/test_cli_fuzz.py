@@ -70,6 +70,20 @@ FUZZ = settings(
 
 
 # ----------------------------------------------------------------------------- fixtures
+@pytest.fixture(scope="module", autouse=True)
+def _imported() -> None:
+    """Every command and the libraries they import on first use, imported before any
+    interruption can land inside an import: an import that Ctrl-C interrupts leaves its
+    finished submodules in this process bound to a half-initialised parent (seen as
+    ``matplotlib has no attribute get_data_path`` in every later case). A user's next
+    command is a new process; these cases share one."""
+    import matplotlib.pyplot  # noqa: F401
+
+    from bifid.cli import load_commands
+
+    load_commands()
+
+
 def _lco_file(path: Path) -> Path:
     t = np.arange(400) / 200.0
     recs = [
