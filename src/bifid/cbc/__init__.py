@@ -33,6 +33,7 @@ from bifid.cbc._controllers import (
     PolarTarget,
 )
 from bifid.cbc._defaults import CBCDefaults, defaults_for
+from bifid.cbc._derive import retry_controller
 from bifid.cbc._forced import ForcedProblem
 from bifid.cbc._forced_measure import ForcedCBCOptions, ForcedPoint, folds_of
 from bifid.cbc._measured import (
@@ -87,6 +88,7 @@ __all__ = [
     "orbit_polar_target",
     "ppcbc_campaign",
     "ppcbc_scan",
+    "retry_controller",
     "run_campaign",
     "scurve_cbc",
     "switch_off_test",

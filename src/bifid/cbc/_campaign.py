@@ -20,9 +20,10 @@ by less than half that and converged easily grows it, so folds are resolved with
 retried before a failure is recorded: (1) back to the last recorded point (the rig
 re-settled there, the oscillation restarted from rest when the rig tripped, a fresh
 finite-difference Jacobian) with twice the smallest step; (2) the same with the
-controller gains doubled (the controller lost lock). A scan with failures is repeated once
-with another controller (``_campaign_tasks._other_controller``: the bootstrap gains in
-``(x1, ẋ1)`` where the protocol's plane is another, else doubled gains). What still
+controller gains doubled (the controller lost lock). A scan with failures is repeated with
+other controllers (``_campaign_tasks._other_controllers``: one designed on the system's
+model, then the bootstrap gains in ``(x1, ẋ1)`` where the protocol's plane is another,
+else doubled gains); a failure another scan of the value answered is dropped. What still
 fails is recorded with its reason and ends the branch; the campaign is then incomplete.
 
 **Records and resume.** Every recorded point is written to the dataset at once, with the

@@ -1,4 +1,5 @@
-"""A campaign's records as a :class:`~bifid.continuation.Diagram` and a dataset.
+"""A campaign's records as a :class:`~bifid.continuation.Diagram` and a dataset, and the
+merge of the scans of one value (:func:`unanswered`: a failure another scan answered).
 
 The diagram is the one result type of bifid (``source = "measurement"``): one branch of
 kind ``"measured"`` per scan or continuation branch, with the measured amplitudes
@@ -16,10 +17,13 @@ import numpy as np
 
 from bifid.cbc._campaign import Campaign, CampaignResult
 from bifid.cbc._forced_measure import fold_points
+from bifid.cbc._measured import Failure
+from bifid.cbc._ppcbc import _first_harmonic_amplitude
+from bifid.cbc._ppcbc_scan import ScanResult
 from bifid.continuation import Branch, Diagram, SpecialPoint
 from bifid.data import forced_dataset, lco_dataset
 
-__all__ = ["result_of"]
+__all__ = ["amplitudes_of", "result_of", "retry_grid", "unanswered"]
 
 
 def _stable(records: list[Any]) -> np.ndarray:
@@ -175,3 +179,65 @@ def result_of(camp: Campaign, resumed: int) -> CampaignResult:
         builder = lco_dataset if spec.protocol == "ppcbc" else forced_dataset
         dataset = builder(list(camp.records), **kw)
     return CampaignResult(diagram, dataset, list(camp.points), list(camp.failures), resumed)
+
+
+# ------------------------------------------------------------- scans of one value
+def retry_grid(grid: tuple[float, ...], failures: list[Failure]) -> tuple[float, ...]:
+    """The amplitude grid of a repeated scan: from the grid point below the smallest
+    amplitude where the first scan failed (a failed bracket, a rejected LCO, the target
+    where it stopped) upwards, so that the other controller starts next to the LCOs the
+    first did not measure (and need not hold the smaller targets it held); the whole grid
+    when a failure has no amplitude."""
+    where = []
+    for f in failures:
+        d = f.data
+        if "bracket" in d:
+            where.append(min(float(v) for v in d["bracket"]))
+        elif "lco" in d:
+            where.append(0.9 * float(d["lco"]))
+        elif "a_star" in d:
+            where.append(float(d["a_star"]))
+        else:
+            return tuple(grid)
+    k = int(np.searchsorted(np.asarray(grid), min(where), side="right")) - 1
+    return tuple(grid[max(min(k, len(grid) - 2), 0) :])
+
+
+#: relative tolerance of the amplitude match between a failure and an LCO that answers it
+ANSWER_TOL = 0.05
+
+
+def unanswered(res: ScanResult, other: ScanResult, x1: str) -> list[Failure]:
+    """The failures of the scan ``res`` (with ``x1`` its amplitude signal) that the other
+    scan at the same value did not answer by measuring the LCO there: an LCO of ``other``
+    whose first-harmonic amplitude of ``x1`` (the scan's ``A*``) lies in a failed bracket,
+    within :data:`ANSWER_TOL` of a rejected LCO, or above the ``A*`` where the scan
+    stopped (the rig tripped or the controller lost lock: the larger targets were not
+    scanned); a failure without an amplitude (no oscillation started) is answered by an
+    ``other`` that measured LCOs without failing."""
+    amps = amplitudes_of(other.points, x1)
+    out = []
+    for f in res.failures:
+        d = f.data
+        if "bracket" in d:
+            lo, hi = sorted(float(v) for v in d["bracket"])
+            hit = any((1 - ANSWER_TOL) * lo <= a <= (1 + ANSWER_TOL) * hi for a in amps)
+        elif "lco" in d:
+            hit = any(abs(a - float(d["lco"])) <= ANSWER_TOL * float(d["lco"]) for a in amps)
+        elif "a_star" in d:
+            hit = any(a >= (1 - ANSWER_TOL) * float(d["a_star"]) for a in amps)
+        else:
+            hit = bool(amps) and not other.failures
+        if not hit:
+            out.append(f)
+    return out
+
+
+def amplitudes_of(points: list[Any], x1: str) -> list[float]:
+    """The first-harmonic amplitude of ``x1`` of measured LCOs (a scan's ``A*``)."""
+    return [
+        _first_harmonic_amplitude(
+            pt.measurement.signal(x1), pt.frequency, pt.measurement.sample_rate
+        )
+        for pt in points
+    ]

@@ -8,21 +8,27 @@ Jacobian, problem, gains) instead of being started again.
 
 from __future__ import annotations
 
+import json
 import math
+import warnings
 from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from bifid.cbc._campaign import Campaign, _Branch
+from bifid.cbc._campaign_result import ANSWER_TOL, amplitudes_of, retry_grid, unanswered
+from bifid.cbc._derive import cycles_at, linearisation, retry_controller
 from bifid.cbc._forced import ForcedProblem, open_loop
 from bifid.cbc._forced_measure import ForcedCBCOptions
 from bifid.cbc._measured import BroydenCorrector
 from bifid.cbc._ppcbc import PPCBCOptions, PPCBCProblem, make_point
 from bifid.cbc._ppcbc_family import TargetFamily, bootstrap
-from bifid.cbc._ppcbc_scan import scan
+from bifid.cbc._ppcbc_scan import ScanResult, hold_orbit, scan
+from bifid.cbc._stability import orbit_polar_target
 from bifid.continuation import Continuation, ContinuationOptions, ContinuationState
-from bifid.errors import ConvergenceError
+from bifid.errors import BifidInputError, ConvergenceError
+from bifid.systems import System, get_system
 
 __all__ = ["run_tasks"]
 
@@ -55,25 +61,67 @@ def _raised(opts: Any) -> Any:
     return replace(opts, kp=GAIN_FACTOR * opts.kp, kd=GAIN_FACTOR * opts.kd)
 
 
-def _other_controller(opts: PPCBCOptions) -> dict[str, Any]:
-    """The controller a failed PP-CBC scan is repeated with, as option fields.
-
-    Where the protocol's plane is not ``(x1, ẋ1)`` and the system has bootstrap gains
-    (they hold its rig in that plane: they start every oscillation), the polar target in
-    ``(x1, ẋ1)`` with those gains: a controller in another plane acts on other modes,
-    e.g. on the period-doubling instability of a large flutter LCO that the heave-pitch
-    controller leaves unstable. Otherwise the gains raised (the controller lost lock)."""
+def _other_controllers(camp: Campaign, opts: PPCBCOptions, value: float):
+    """The controllers a failed PP-CBC scan at ``value`` is repeated with, in turn, as
+    option fields. With a model of the campaign's system (a virtual rig's, or the system
+    it names), first the one designed on its cycles at ``value``
+    (:func:`~bifid.cbc._derive.retry_controller`, e.g. against the period doubling of a
+    large flutter LCO). Then, where the protocol's plane is not ``(x1, ẋ1)`` and the
+    system has bootstrap gains (they hold its rig in that plane: they start every
+    oscillation), the polar target in ``(x1, ẋ1)`` with those gains; else the gains
+    raised (the controller lost lock)."""
     derivative = f"{opts.x1}_dot"
+    d = _design(camp, opts, value)
+    if d is not None and (d["x2"], d["kp"], d["kd"]) != (opts.x2, opts.kp, opts.kd):
+        yield _fields(d, opts, *_model(camp))
     if opts.bootstrap_gains is not None and opts.x2 != derivative:
         kp, kd = (float(g) for g in opts.bootstrap_gains)
-        return {
-            "x2": derivative,
-            "kp": kp,
-            "kd": kd,
-            "filter_hz": None,
-            "centre": [float(opts.centre[0]), 0.0],
-        }
-    return {"kp": GAIN_FACTOR * opts.kp, "kd": GAIN_FACTOR * opts.kd}
+        centre = [float(opts.centre[0]), 0.0]
+        yield {"x2": derivative, "kp": kp, "kd": kd, "filter_hz": None, "centre": centre}
+    else:
+        yield {"kp": GAIN_FACTOR * opts.kp, "kd": GAIN_FACTOR * opts.kd}
+
+
+def _model(camp: Campaign) -> tuple[System, Any] | None:
+    """The campaign's system and parameter vector: the virtual rig's, else the system
+    the campaign names; None without one."""
+    system = getattr(camp.rig, "system", None)
+    try:
+        if not isinstance(system, System):
+            system = get_system(camp.spec.system)
+        return system, system.param_vector(dict(camp.spec.parameters))
+    except (BifidInputError, OSError, KeyError, ValueError):
+        return None
+
+
+def _design(
+    camp: Campaign, opts: PPCBCOptions, value: float, orbit: int | None = None
+) -> dict[str, Any] | None:
+    """The retry controller designed on the model (:func:`retry_controller`, for all its
+    cycles at ``value`` or the ``orbit``-th; None without a model)."""
+    model = _model(camp)
+    if model is None or model[0].kind != "autonomous":
+        return None
+    system, p = model
+    outputs = tuple(camp.rig.output_names)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return retry_controller(
+            system, p, camp.spec.param, value, camp.spec.range, opts.x1, opts.x2, outputs, orbit
+        )
+
+
+def _fields(d: dict[str, Any], opts: PPCBCOptions, system: System, p) -> dict[str, Any]:
+    """A designed controller as option fields (the bootstrap's centre in its plane)."""
+    x2 = str(d["x2"])
+    if x2 == opts.x2:
+        centre = [float(c) for c in opts.centre]
+    elif x2.endswith("_dot"):
+        centre = [float(opts.centre[0]), 0.0]
+    else:  # another output: its value at the model's equilibrium
+        x_eq, _ = linearisation(system, p)
+        centre = [float(opts.centre[0]), float(x_eq[system.state_index(x2)])]
+    return {"x1": opts.x1, "x2": x2, "kp": float(d["kp"]), "kd": float(d["kd"]), "centre": centre}
 
 
 def _driver_options(camp: Campaign, newton_max: int, ds_max: float) -> ContinuationOptions:
@@ -154,11 +202,13 @@ def _ppcbc_options(camp: Campaign) -> PPCBCOptions:
     return _with_gains(PPCBCOptions(**dict(camp.spec.options)), camp.cursor.get("gains"))
 
 
-def _scan_once(
-    camp: Campaign, value: float, opts: PPCBCOptions, branch: int, known: list[tuple[float, float]]
-):
-    """One scan at ``value``; points already recorded there (``known``) are not again."""
-    spec = camp.spec
+def _keeper(camp: Campaign, opts: PPCBCOptions, branch: int, known: list[tuple[float, float]]):
+    """Records a point unless ``known`` holds it already, with the controller it was
+    measured with (in the file from the checkpoint that ends the value on)."""
+    c = opts.controller
+    controller = json.dumps(
+        {"x1": c.x1, "x2": c.x2, "kp": c.kp, "kd": c.kd, "filter_hz": c.filter_hz}
+    )
 
     def keep(pt) -> None:
         a = float(pt.amplitude[opts.x1])
@@ -169,40 +219,121 @@ def _scan_once(
             return  # two brackets (or a repeated scan) converged to the same LCO
         known.append((float(pt.param), a))
         camp.record(pt, branch)
+        camp.records[-1].extra["controller"] = controller
 
+    return keep
+
+
+def _scan_once(
+    camp: Campaign,
+    value: float,
+    opts: PPCBCOptions,
+    branch: int,
+    known: list[tuple[float, float]],
+    amplitudes: tuple[float, ...] | None = None,
+):
+    """One scan at ``value`` (on the campaign's amplitude grid, or ``amplitudes``); points
+    already recorded there (``known``) are not again."""
+    spec = camp.spec
     camp.seed_rig()
     return scan(
         camp.rig,
         spec.param,
         value,
-        spec.amplitudes,
+        spec.amplitudes if amplitudes is None else amplitudes,
         opts,
         omega_guess=float(camp.cursor["omega"]),
-        on_point=keep,
+        on_point=_keeper(camp, opts, branch, known),
         on_evaluation=camp.on_evaluation,
     )
 
 
+def _model_orbits(
+    camp: Campaign, opts: PPCBCOptions, value: float, branch: int, known, res: ScanResult
+) -> None:
+    """The LCOs the scans left unmeasured, each held from the model's orbit at ``value``
+    (:func:`cycles_at`) with a controller designed on that orbit
+    (:func:`~bifid.cbc._ppcbc_scan.hold_orbit`); the failures they answer are dropped
+    from ``res``, all of them once every orbit of the model there is measured (the LCOs
+    the campaign asks for)."""
+    model = _model(camp)
+    if model is None or model[0].kind != "autonomous":
+        return
+    system, p = model
+    spec = camp.spec
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        orbits = cycles_at(system, p, spec.param, value, spec.range)
+    got = ScanResult()
+    wanted = []
+    for k, (lam, orbit, period) in enumerate(orbits):
+        pv = np.asarray(system.param_vector({**spec.parameters, spec.param: lam}))
+        a = float(orbit_polar_target(orbit, system, opts.x1, opts.x2, 1, p=pv).coefficients[0])
+        wanted.append(a)
+        if any(abs(b - a) <= ANSWER_TOL * a for b in amplitudes_of(res.points, opts.x1)):
+            continue  # measured by a scan
+        d = _design(camp, opts, value, k)
+        if d is None:
+            camp.warnings.append(
+                f"PP-CBC at {spec.param}={value:g}: no controller holds "
+                f"the model's orbit of A* = {a:.4g}"
+            )
+            continue
+        new = _with_gains(opts, _fields(d, opts, system, p))
+        target = orbit_polar_target(orbit, system, new.x1, new.x2, new.n_harmonics, p=pv)
+        camp.seed_rig()
+        om = 2.0 * math.pi / period
+        pt, why = hold_orbit(camp.rig, spec.param, value, target, new, om, camp.on_evaluation)
+        if pt is None:
+            camp.warnings.append(f"PP-CBC at {spec.param}={value:g}, orbit A* = {a:.4g}: {why}")
+            continue
+        _keeper(camp, new, branch, known)(pt)
+        got.points.append(pt)
+    res.points += got.points
+    measured = amplitudes_of(res.points, opts.x1)
+    if wanted and all(  # every LCO of the model at this value is measured: none failed
+        any(abs(b - a) <= ANSWER_TOL * a for b in measured) for a in wanted
+    ):
+        res.failures = []
+    else:
+        res.failures = unanswered(res, got, opts.x1)
+
+
 def _scan_value(camp: Campaign, value: float, branch: int):
-    """Scan at ``value``; a scan with failures is repeated once with another controller
-    (:func:`_other_controller`), which the following values keep when it did better."""
+    """Scan at ``value``; a scan with failures is repeated with other controllers
+    (:func:`_other_controllers`) while failures remain, from where it failed upwards
+    (:func:`retry_grid`); the following values keep a controller that did better. A
+    failure that another scan answered (it measured the LCO there, :func:`unanswered`)
+    is dropped."""
     opts = _ppcbc_options(camp)
     known: list[tuple[float, float]] = []
     res = _scan_once(camp, value, opts, branch, known)
-    if res.failures:
-        other = _other_controller(opts)
-        again = _scan_once(camp, value, _with_gains(opts, other), branch, known)
-        if len(again.failures) < len(res.failures):
+    first = len(res.failures)
+    for other in _other_controllers(camp, opts, value) if res.failures else ():
+        new = _with_gains(opts, other)
+        grid = retry_grid(camp.spec.amplitudes, res.failures)
+        again = _scan_once(camp, value, new, branch, known, grid)
+        retry = f"after a retry with kp = {new.kp:.4g}, kd = {new.kd:.4g} on ({new.x1}, {new.x2})"
+        failures = unanswered(res, again, opts.x1) + [
+            replace(f, reason=f"{f.reason} ({retry})") for f in unanswered(again, res, new.x1)
+        ]
+        if len(again.failures) < first:
+            first = len(again.failures)
             camp.cursor["gains"] = {**(_saved_controller(camp)), **other}
-            new = _with_gains(opts, other)
             camp.warnings.append(
                 f"PP-CBC at {camp.spec.param}={value:g}: controller changed to kp = "
                 f"{new.kp:g}, kd = {new.kd:g} on ({new.x1}, {new.x2}) (the scan failed "
                 "with the other)"
             )
-            again.points = res.points + again.points
-            again.found = res.found + again.found
-            res = again
+        again.points = res.points + again.points
+        again.found = res.found + again.found
+        again.warnings = res.warnings + again.warnings
+        again.failures = failures
+        res = again
+        if not res.failures:
+            break
+    if res.failures:
+        _model_orbits(camp, opts, value, branch, known, res)
     camp.failures += res.failures
     camp.warnings += res.warnings
     if res.points:
@@ -243,7 +374,8 @@ def _ppcbc_continuation(camp: Campaign) -> None:
         res = _scan_value(camp, float(spec.range[0]), 0)
         x1 = _ppcbc_options(camp).x1
         starts: list[dict[str, Any]] = []
-        for (fam, ev, cor), pt in zip(res.found, res.points, strict=True):
+        # (LCOs held from the model's orbits, last, have no scan to continue from)
+        for (fam, ev, cor), pt in zip(res.found, res.points, strict=False):
             a = float(pt.amplitude[x1])
             if all(abs(s["amp"] - a) > 0.02 * a for s in starts):
                 starts.append(

@@ -42,17 +42,20 @@ import jax.numpy as jnp
 import numpy as np
 
 from bifid.cbc._controllers import PDController
+from bifid.cbc._fastfield import jax_vmap_field
 from bifid.cbc._stability import (
+    _state_signal,
     augmented_params,
     controlled_rhs,
     invariant,
     orbit_polar_target,
 )
 from bifid.continuation import ContinuationOptions, continue_from_hopf, floquet_multipliers
+from bifid.continuation.truth import correct_orbit
 from bifid.errors import BifidInputError, ConvergenceError, ConvergenceWarning
 from bifid.systems import System
 
-__all__ = ["derive", "linearisation", "model_cycles"]
+__all__ = ["cycles_at", "derive", "linearisation", "model_cycles", "retry_controller"]
 
 
 def _nice(x: float) -> float:
@@ -184,13 +187,28 @@ def model_cycles(
     ``[lo, hi]`` widened on both sides by ``span``, its width or half its values, whichever
     is larger (the Hopf point may lie well outside a campaign's range); a window without a
     Hopf point is widened four times, up to three times; steps of at most ``ds_max``
-    times ``span``. Returns ``(branches, span)``.
+    times ``span``. Returns ``(branches, span)`` (kept for the process: the same call again
+    returns the same branches).
 
     Raises
     ------
     ConvergenceError
         If no window holds a Hopf point with cycles.
     """
+    key = (system.name, id(system.field), tuple(np.asarray(p, float).tolist()), param, lo, hi)
+    key += (float(ds_max),)
+    if key in _CYCLES:  # (a campaign's retries ask for the cycles its defaults computed)
+        return _CYCLES[key]
+    _CYCLES[key] = _model_cycles(system, p, param, lo, hi, ds_max)
+    while len(_CYCLES) > 8:
+        _CYCLES.pop(next(iter(_CYCLES)))
+    return _CYCLES[key]
+
+
+_CYCLES: dict[tuple, tuple[list, float]] = {}
+
+
+def _model_cycles(system: System, p, param: str, lo: float, hi: float, ds_max: float):
     span = max(hi - lo, 0.5 * max(abs(lo), abs(hi)), 1e-9)
     reason = "no Hopf point"
     for _ in range(4):
@@ -295,43 +313,18 @@ def _gains(
     candidates and cycles in one batched Floquet computation)."""
     i1 = system.state_index(x1)
     order = sorted(range(len(cycles)), key=lambda k: float(np.ptp(cycles[k][1][:, i1])))
-    picks = sorted({order[0], order[len(order) // 2], order[-1]})
+    picks = [cycles[k] for k in sorted({order[0], order[len(order) // 2], order[-1]})]
     candidates = [
         (kp_f * omega**2 / b, kd_f * omega / b)
         for kp_f in (0.0, 0.3, 1.0)
         for kd_f in (0.1, 0.3, 1.0, 3.0)
     ]
-    targets, pvs = [], []
-    for k in picks:
-        lam, orbit, *_ = cycles[k]
-        pvs.append(np.asarray(p.at[system.index(param)].set(lam)))
-        targets.append(orbit_polar_target(orbit, system, x1, x2, 10, p=pvs[-1]))
-    rhs, _ = controlled_rhs(system, PDController(1.0, 1.0, x1, x2), targets[0])
-    orbits, periods, qs = [], [], []
-    for kp, kd in candidates:
-        for j, k in enumerate(picks):
-            _, orbit, period, _ = cycles[k]
-            orbits.append(orbit)
-            periods.append(period)
-            qs.append(augmented_params(pvs[j], PDController(kp, kd, x1, x2), targets[j]))
-    try:
-        mults, _, fmax = floquet_multipliers(
-            rhs, np.stack(orbits), np.array(periods), np.stack(qs), autonomous=True
-        )
-    except (BifidInputError, ArithmeticError, ValueError):
+    worst = _worst(system, p, param, picks, x1, x2, candidates)
+    if worst is None:
         return {}
-    # a candidate on an orbit without the trivial multiplier was computed off the
-    # controlled system's orbit (an invasive target): it proves nothing
-    fmax = np.where([invariant(m) for m in mults], np.asarray(fmax, dtype=float), np.inf)
-    worst = np.nan_to_num(fmax.reshape(len(candidates), len(picks)), nan=np.inf).max(axis=1)
     # the gentlest candidate that stabilises with margin (least actuator effort and
     # noise fed back), else the most stabilising one
-    gentle = [k for k in range(len(candidates)) if worst[k] <= GAIN_MARGIN]
-    best = (
-        min(gentle, key=lambda k: math.hypot(*_gain_factors(candidates[k], omega, b)))
-        if gentle
-        else int(np.argmin(worst))
-    )
+    best = _gentlest(worst, [_gain_factors(c, omega, b) for c in candidates])
     if worst[best] >= 1.0:
         warnings.warn(
             f"CBC defaults of {system.name!r}: no candidate gains stabilise the "
@@ -341,3 +334,222 @@ def _gains(
             stacklevel=4,
         )
     return {"kp": candidates[best][0], "kd": candidates[best][1]}
+
+
+def _gentlest(worst: np.ndarray, factors: list[tuple[float, float]]) -> int:
+    """The candidate with the smallest gains (``factors``, in units of the system) among
+    those whose largest controlled multiplier is at most :data:`GAIN_MARGIN`, else the
+    one with the smallest multiplier."""
+    gentle = [k for k in range(len(worst)) if worst[k] <= GAIN_MARGIN]
+    if gentle:
+        return min(gentle, key=lambda k: math.hypot(*factors[k]))
+    return int(np.argmin(worst))
+
+
+def _worst(
+    system: System, p, param: str, cycles, x1: str, x2: str, candidates
+) -> np.ndarray | None:
+    """The largest non-trivial controlled Floquet multiplier over ``cycles`` (``(λ, orbit,
+    period, ...)``) of each candidate ``(kp, kd)`` in the plane ``(x1, x2)``, with the
+    polar target of each cycle in its own frame (non-invasive on it); one batched Floquet
+    computation. Infinite where the orbit is not one of the controlled system (an
+    invasive target proves nothing); None when the computation failed."""
+    targets, pvs = [], []
+    for lam, orbit, *_ in cycles:
+        pvs.append(np.asarray(jnp.asarray(p).at[system.index(param)].set(lam)))
+        targets.append(orbit_polar_target(orbit, system, x1, x2, 10, p=pvs[-1]))
+    rhs, _ = controlled_rhs(system, PDController(1.0, 1.0, x1, x2), targets[0])
+    orbits, periods, qs = [], [], []
+    for kp, kd in candidates:
+        for j, (_, orbit, period, *_) in enumerate(cycles):
+            orbits.append(orbit)
+            periods.append(period)
+            qs.append(augmented_params(pvs[j], PDController(kp, kd, x1, x2), targets[j]))
+    try:
+        mults, _, fmax = floquet_multipliers(
+            rhs, np.stack(orbits), np.array(periods), np.stack(qs), autonomous=True
+        )
+    except (BifidInputError, ArithmeticError, ValueError):
+        return None
+    fmax = np.where([invariant(m) for m in mults], np.asarray(fmax, dtype=float), np.inf)
+    return np.nan_to_num(fmax.reshape(len(candidates), len(cycles)), nan=np.inf).max(axis=1)
+
+
+#: the retry controller's candidate gains, in units of the system on the cycles
+RETRY_FACTORS = (0.0, 0.1, -0.1, 0.3, -0.3, 1.0, -1.0, 3.0, -3.0)
+
+
+def retry_controller(
+    system: System,
+    p,
+    param: str,
+    value: float,
+    window: tuple[float, float],
+    x1: str,
+    x2: str,
+    outputs: tuple[str, ...],
+    orbit: int | None = None,
+) -> dict[str, Any] | None:
+    """A PP-CBC controller designed on the model for the LCOs at ``param = value``.
+
+    The model's cycles (:func:`model_cycles` over ``window``: a campaign's range, whose
+    cycles its defaults computed) on both sides of ``value`` on every branch are the
+    LCOs to hold, or only the ``orbit``-th of :func:`cycles_at` (with the candidate
+    factors up to 10). The candidate planes keep ``x1`` (the scan's amplitude grid is in
+    its units) and pair it with ``x2``, ``ẋ1`` and every other output; the gains are
+    ``(kp, kd) = (f_p a/x̂1, f_d a/x̂2) / b`` with ``f ∈`` :data:`RETRY_FACTORS` (``x̂``
+    the amplitudes of the plane's signals and ``a`` that of the actuated state's
+    acceleration on the largest cycle, ``b`` the size of the input direction: ``ω²/b``,
+    ``ω/b`` in ``(x1, ẋ1)``, as :func:`derive`). Their largest controlled Floquet
+    multiplier over the cycles (thesis eq. 3.26, Fig. 3.9; one batched computation per
+    plane, without the controller's output filter) picks the gentlest candidate with
+    margin (:data:`GAIN_MARGIN`), else the most stabilising one if it stabilises at all,
+    among those that leave the rest position no less stable than without control (a PD
+    law on a fixed target: the scan's smallest targets).
+
+    Returns
+    -------
+    dict or None
+        ``x1, x2, kp, kd`` and ``multiplier`` (the largest controlled one), or None when
+        the model has no cycles at ``value`` or no candidate stabilises them. Kept for
+        the process, as :func:`model_cycles`.
+    """
+    key = (system.name, id(system.field), tuple(np.asarray(p, float).tolist()), param, value)
+    key += (tuple(window), x1, x2, tuple(outputs), orbit)
+    if key not in _DESIGNS:
+        cycles = _crossings(system, p, param, value, window)
+        if orbit is not None:
+            cycles = [cycles_at(system, p, param, value, window)[orbit]]
+        _DESIGNS[key] = _design(system, p, param, value, cycles, x1, x2, outputs, orbit)
+    while len(_DESIGNS) > 64:
+        _DESIGNS.pop(next(iter(_DESIGNS)))
+    return _DESIGNS[key]
+
+
+_DESIGNS: dict[tuple, dict[str, Any] | None] = {}
+
+
+def _crossings(system: System, p, param: str, value: float, window) -> list:
+    """``(λ, orbit, period)`` of the model's cycles on both sides of ``value``, two per
+    crossing of ``value`` by a branch (none without cycles)."""
+    try:
+        branches, _ = model_cycles(system, p, param, *sorted(window))
+    except ConvergenceError:
+        return []
+    n = system.n_states
+    cycles = []
+    for br in branches:
+        M = int(br.meta.get("n_mesh", 32))
+        lam = np.asarray(br.params, dtype=float)
+        for i in np.flatnonzero((lam[:-1] - value) * (lam[1:] - value) <= 0):
+            for j in (i, i + 1):
+                orbit = br.solutions[j, : M * n].reshape(M, n)
+                cycles.append((float(lam[j]), orbit, float(br.data["period"][j])))
+    return cycles
+
+
+def cycles_at(
+    system: System, p, param: str, value: float, window: tuple[float, float]
+) -> list[tuple[float, np.ndarray, float]]:
+    """The model's limit cycles at ``value``, one per crossing of a branch
+    (:func:`model_cycles` over ``window``): ``(λ, orbit (M, n), period)``, Newton-
+    corrected at ``λ = value`` from the nearer branch cycle (else the other), else the
+    nearer as it is."""
+    cycles = _crossings(system, p, param, value, window)
+    key = ("at", system.name, id(system.field), tuple(np.asarray(p, float).tolist()), value)
+    key += (param, tuple(window))
+    if key not in _DESIGNS:
+        _DESIGNS[key] = [
+            _at_value(system, p, param, value, cycles[k : k + 2]) for k in range(0, len(cycles), 2)
+        ]
+    return _DESIGNS[key]
+
+
+def _design(system, p, param, value, cycles, x1, x2, outputs, orbit) -> dict[str, Any] | None:
+    if not cycles:
+        return None
+    amp = _signal_amplitudes(system, p, param, max(cycles, key=lambda c: float(np.ptp(c[1]))))
+    b = _input_size(system, jnp.asarray(p))
+    planes = [(x1, x2), (x1, f"{x1}_dot")] + [(x1, o) for o in outputs if o not in (x1, x2)]
+    grid = RETRY_FACTORS + ((10.0, -10.0) if orbit is not None else ())
+    factors = [(fp, fd) for fp in grid for fd in grid if fp or fd]
+    best: dict[str, Any] | None = None
+    for a, c in dict.fromkeys(planes):
+        units = (amp["input"] / (b * amp[a]), amp["input"] / (b * amp[c]))
+        cands = [(fp * units[0], fd * units[1]) for fp, fd in factors]
+        worst = _worst(system, p, param, cycles, a, c, cands)
+        if worst is None:
+            continue
+        # a controller that destabilises the rest position trips the rig on the scan's
+        # small targets, however well it holds the cycles
+        worst[~_keeps_rest(system, p, param, value, a, c, cands)] = np.inf
+        k = _gentlest(worst, factors)
+        score = (
+            worst[k] > GAIN_MARGIN,
+            math.hypot(*factors[k]) if worst[k] <= GAIN_MARGIN else worst[k],
+        )
+        if worst[k] < 1.0 and (best is None or score < best["score"]):
+            best = {"x1": a, "x2": c, "kp": cands[k][0], "kd": cands[k][1]}
+            best.update(multiplier=float(worst[k]), score=score)
+    if best is not None:
+        best.pop("score")
+    return best
+
+
+def _signal_amplitudes(system: System, p, param: str, cycle) -> dict[str, float]:
+    """Half the peak-to-peak of every state and ``"<state>_dot"`` on a cycle, and of the
+    actuated state's derivative (``"input"``)."""
+    lam, orbit = cycle[0], np.asarray(cycle[1], dtype=float)
+    pv = jnp.asarray(p).at[system.index(param)].set(lam)
+    fx = np.asarray(jax_vmap_field(system)(jnp.asarray(orbit), pv))
+    out = {}
+    for i, name in enumerate(system.states):
+        out[name] = 0.5 * float(np.ptp(orbit[:, i]))
+        out[f"{name}_dot"] = 0.5 * float(np.ptp(fx[:, i]))
+    e = np.abs(np.asarray(system.input_direction(pv))) if system.input_direction else None
+    k = int(np.argmax(e)) if e is not None else 0
+    out["input"] = 0.5 * float(np.ptp(fx[:, k]))
+    return {key: max(v, 1e-300) for key, v in out.items()}
+
+
+def _keeps_rest(
+    system: System, p, param: str, value: float, x1: str, x2: str, candidates
+) -> np.ndarray:
+    """Per candidate ``(kp, kd)``: whether the equilibrium at ``value`` held by the PD law
+    on a fixed target, ``ẋ = f(x) - e (kp x1 + kd x2)`` linearised, is no less stable than
+    the free one (largest real part of its eigenvalues not above ``max(free, 0)``)."""
+    pv = jnp.asarray(p).at[system.index(param)].set(value)
+    x_eq, lam = linearisation(system, pv)
+    jac = np.asarray(jax.jacfwd(lambda x: system.field(x, pv))(jnp.asarray(x_eq)))
+    e = np.asarray(system.input_direction(pv), dtype=float)
+
+    def grad(name: str) -> np.ndarray:
+        i, derivative = _state_signal(system, name)
+        if derivative:
+            return jac[i]
+        g = np.zeros(system.n_states)
+        g[i] = 1.0
+        return g
+
+    g1, g2 = grad(x1), grad(x2)
+    limit = max(float(np.max(lam.real)), 0.0) + 1e-9
+    return np.array(
+        [
+            float(np.max(np.linalg.eigvals(jac - np.outer(e, kp * g1 + kd * g2)).real)) <= limit
+            for kp, kd in candidates
+        ]
+    )
+
+
+def _at_value(system: System, p, param: str, value: float, pair) -> tuple:
+    """``(λ, orbit, period)`` at ``value`` from the two branch cycles on either side of it:
+    Newton-corrected there from the nearer (else the other), else the nearer as it is."""
+    pair = sorted(pair, key=lambda c: abs(c[0] - value))
+    for _, orbit, period in pair:
+        try:
+            V, T = correct_orbit(system, param, value, orbit, period, p=p, n_mesh=64)
+        except ConvergenceError:
+            continue
+        if abs(float(np.ptp(V)) - float(np.ptp(orbit))) <= 0.3 * float(np.ptp(orbit)):
+            return value, V, T  # (not fallen onto the equilibrium)
+    return pair[0]

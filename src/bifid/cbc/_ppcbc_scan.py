@@ -27,6 +27,7 @@ from typing import Any
 
 import numpy as np
 
+from bifid.cbc._controllers import PolarTarget
 from bifid.cbc._measured import BroydenCorrector, Evaluation, Failure, RigTripped
 from bifid.cbc._ppcbc import Invasive, LCOPoint, PPCBCOptions, PPCBCProblem, make_point
 from bifid.cbc._ppcbc_family import Response, TargetFamily, bootstrap
@@ -34,7 +35,7 @@ from bifid.cbc._rig import AbstractRig
 from bifid.cbc._secant import HarmonicSecant
 from bifid.errors import BifidInputError, ConvergenceError, ConvergenceWarning
 
-__all__ = ["ScanResult", "ppcbc_scan", "scan"]
+__all__ = ["ScanResult", "hold_orbit", "ppcbc_scan", "scan"]
 
 
 @dataclass
@@ -322,7 +323,7 @@ def scan(
                 try:
                     pt = make_point(rig, opts, fam, ev, scanner.evals, "scan")
                 except Invasive as exc:
-                    fail(f"{exc} (A* = {ev.y[0]:.4g})", a_star=float(ev.y[0]))
+                    fail(f"{exc} (A* = {ev.y[0]:.4g})", lco=float(ev.y[0]))
                 else:
                     out.points.append(pt)
                     out.found.append((fam, ev, corrector))
@@ -369,3 +370,44 @@ def ppcbc_scan(
     keyword arguments)."""
     r = scan(rig, param, value, amplitudes, options, **kw)
     return r.points, r.failures
+
+
+def hold_orbit(
+    rig: AbstractRig,
+    param: str,
+    value: float,
+    target: PolarTarget,
+    options: PPCBCOptions,
+    omega: float,
+    on_evaluation: Callable[[int], None] | None = None,
+) -> tuple[LCOPoint | None, str]:
+    """The LCO near a known orbit, without a scan: the oscillation started at 0.8 times
+    the target's mean radius (:func:`~bifid.cbc._ppcbc_family.bootstrap`), then the
+    PP-CBC zero problem at ``value`` solved by the Broyden corrector from ``target`` (e.g.
+    a model's orbit, :func:`~bifid.cbc.orbit_polar_target`, in its own frame). For LCOs a
+    scan cannot reach: the targets between two LCOs, which it must hold on the way, can
+    be beyond its controller. Returns ``(point, "")`` or ``(None, reason)``."""
+    rig.set_parameter(param, value)
+    a0 = float(target.coefficients[0])
+    try:
+        _, _, omega = bootstrap(rig, options, 0.8 * a0, omega, a_max=a0)
+    except ConvergenceError as exc:
+        return None, f"the oscillation could not be started near the orbit: {exc}"
+    matrix = np.eye(2) if target.transform is None else np.array(target.transform, float)
+    family = TargetFamily(options, matrix, target.origin)
+    vec = family.unknowns(target)[: family.size]
+    problem = PPCBCProblem(rig, options, family, param, omega, vec)
+    corrector = BroydenCorrector(problem, max_iter=options.newton_max, on_evaluation=on_evaluation)
+    e_p = np.zeros(vec.shape[0] + 1)
+    e_p[-1] = 1.0
+    r = corrector.correct(np.concatenate([vec, [value]]), e_p, value, None)
+    if not r.converged:
+        return (
+            None,
+            f"the control error did not converge from the orbit: {r.info.get('reason', '')}",
+        )
+    try:
+        ev = r.info["evaluation"]
+        return make_point(rig, options, family, ev, int(r.info.get("evaluations", 0)), "scan"), ""
+    except Invasive as exc:
+        return None, str(exc)
