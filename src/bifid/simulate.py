@@ -9,7 +9,6 @@ from __future__ import annotations
 import functools
 from collections.abc import Callable
 
-import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -22,6 +21,8 @@ Array = jnp.ndarray
 
 @functools.lru_cache(maxsize=64)
 def _solver(rhs: Callable, rtol: float, atol: float, max_steps: int) -> Callable:
+    import diffrax  # here: importing it costs 1-2 s that commands without simulation skip
+
     term = diffrax.ODETerm(lambda t, y, args: rhs(y, t, args))
 
     @jax.jit

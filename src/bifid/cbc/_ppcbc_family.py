@@ -32,6 +32,8 @@ from bifid.signal import (
     estimate_frequency,
     fourier_basis,
     fourier_project,
+    fourier_project_batch,
+    fourier_project_segments,
     polar_project,
     uniform_basis,
     whole_periods,
@@ -138,31 +140,38 @@ class TargetFamily:
 
     # ------------------------------------------------------------------ responses
     def _from_fit(self, c1: np.ndarray, c2: np.ndarray) -> np.ndarray:
-        """The family's unknowns of the curve given by time-domain Fourier fits.
+        """The family's unknowns of the curves given by time-domain Fourier fits.
+
+        ``c1``, ``c2`` of shape ``(p, 2q+1)``: ``p`` fits (e.g. one per period), read at once;
+        returns shape ``(p, size)``.
 
         Polar: ``r(φ)`` is projected over the fitted curve sampled uniformly in its own
         phase ``θ``, with the exact ``dφ/dθ = (ξ1 ξ2' - ξ2 ξ1') / r²`` of the series as the
         quadrature weight: the integrand is smooth and periodic in ``θ``, so the rule is
         spectrally accurate on a short grid (eq. 3.24)."""
-        q = (c1.shape[0] - 1) // 2
+        q = (c1.shape[1] - 1) // 2
         if not self.polar:
-            A1 = math.hypot(c1[1], c1[q + 1])
-            A2 = math.hypot(c2[1], c2[q + 1])
+            A1 = np.hypot(c1[:, 1], c1[:, q + 1])
+            A2 = np.hypot(c2[:, 1], c2[:, q + 1])
             # sense of rotation in (x1, x2): sign of the area swept (a1 b2 - b1 a2)
-            rot = 1.0 if (c1[1] * c2[q + 1] - c1[q + 1] * c2[1]) >= 0 else -1.0
-            return np.array([A1, rot * A2 / max(A1, 1e-300), c1[0], c2[0]])
+            rot = np.where(c1[:, 1] * c2[:, q + 1] - c1[:, q + 1] * c2[:, 1] >= 0, 1.0, -1.0)
+            return np.column_stack([A1, rot * A2 / np.maximum(A1, 1e-300), c1[:, 0], c2[:, 0]])
         grid = uniform_basis(_CURVE_POINTS, q)
         j = np.arange(1, q + 1, dtype=float)
-        x = grid @ np.column_stack([c1, c2])
-        dx = grid @ np.column_stack(
-            [np.concatenate([[0.0], j * c[q + 1 :], -j * c[1 : q + 1]]) for c in (c1, c2)]
-        )
-        xi = (x - np.asarray(self.origin)) @ self.inv.T
-        dxi = dx @ self.inv.T
-        r2 = np.maximum(xi[:, 0] ** 2 + xi[:, 1] ** 2, 1e-300)
-        dphi = (xi[:, 0] * dxi[:, 1] - xi[:, 1] * dxi[:, 0]) / r2
-        phi = np.arctan2(xi[:, 1], xi[:, 0])
-        return fourier_project(np.sqrt(r2), phi, self.o.n_harmonics, weights=np.abs(dphi))
+        x = [c @ grid.T - o for c, o in zip((c1, c2), self.origin, strict=True)]
+        dx = [
+            np.concatenate([np.zeros((c.shape[0], 1)), j * c[:, q + 1 :], -j * c[:, 1 : q + 1]], 1)
+            @ grid.T
+            for c in (c1, c2)
+        ]
+        (a, b), (c, d) = self.inv
+        xi1, xi2 = a * x[0] + b * x[1], c * x[0] + d * x[1]
+        dxi1, dxi2 = a * dx[0] + b * dx[1], c * dx[0] + d * dx[1]
+        r2 = np.maximum(xi1**2 + xi2**2, 1e-300)
+        dphi = (xi1 * dxi2 - xi2 * dxi1) / r2
+        phi = np.arctan2(xi2, xi1)
+        B = fourier_basis(phi.ravel(), self.o.n_harmonics).reshape(*phi.shape, -1)
+        return fourier_project_batch(np.sqrt(r2), B, weights=np.abs(dphi))
 
     def _polar_of(self, x1: np.ndarray, x2: np.ndarray) -> np.ndarray:
         d1, d2 = x1 - self.origin[0], x2 - self.origin[1]
@@ -196,25 +205,20 @@ class TargetFamily:
         x1, x2 = x1[-n:], x2[-n:]
         theta = om * np.arange(n) / m.sample_rate
         nfit = max(2 * self.o.n_harmonics, 12) if self.polar else 3
-        B = fourier_basis(theta, nfit)  # computed once, its rows reused for every period
         per = 2.0 * math.pi / om * m.sample_rate
         k_per = round(n / per)
         if k_per < 3:
+            B = fourier_basis(theta, nfit)
             c = fourier_project(np.column_stack([x1, x2]), theta, nfit, basis=B)
-            vec = self._from_fit(c[:, 0], c[:, 1])
+            vec = self._from_fit(c[None, :, 0], c[None, :, 1])[0]
             floor = coefficient_noise(x1 - B @ c[:, 0]) * float(np.hypot(*self.inv[:, 0]))
         else:
-            vals, resid = [], []
-            for k in range(k_per):
-                lo, hi = round(k * per), round((k + 1) * per)
-                xk = np.column_stack([x1[lo:hi], x2[lo:hi]])
-                ck = fourier_project(xk, theta[lo:hi], nfit, basis=B[lo:hi])
-                vals.append(self._from_fit(ck[:, 0], ck[:, 1]))
-                resid.append(x1[lo:hi] - B[lo:hi] @ ck[:, 0])
-            v = np.asarray(vals)
+            edges = [min(round(k * per), n) for k in range(k_per + 1)]
+            ck, resid = fourier_project_segments(np.column_stack([x1, x2]), theta, edges, nfit)
+            v = self._from_fit(ck[..., 0], ck[..., 1])
             vec = v.mean(axis=0)
             sd = np.std(v, axis=0, ddof=1) * self.scales(vec)
-            floor = coefficient_noise(np.concatenate(resid)) * float(np.hypot(*self.inv[:, 0]))
+            floor = coefficient_noise(resid[:, 0]) * float(np.hypot(*self.inv[:, 0]))
             floor = max(floor, 3.0 * float(np.max(sd)) / math.sqrt(k_per))
         # a record that scatters by more than 1 % is not a steady orbit, not noise: cap the
         # floor so that it can never widen a tolerance enough to accept it

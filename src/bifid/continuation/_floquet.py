@@ -67,7 +67,6 @@ import math
 from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
-import diffrax
 import jax
 import jax.numpy as jnp
 import numpy as np
@@ -157,6 +156,7 @@ def _segments_fn(rhs: Callable) -> Callable:
     ``Psi = D^{-1} Phi D``, from the identity over ``[t0, t1]``. The number of factors of
     an orbit and the number of orbits are run-time values (a batch of sub-intervals of any
     orbits), so one program serves every branch."""
+    import diffrax  # here: importing it costs 1-2 s that commands without Floquet skip
 
     def one(x0, t0, t1, p, d):
         n = x0.shape[0]

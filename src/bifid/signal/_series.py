@@ -4,9 +4,10 @@ Two kinds of input, one set of tools:
 
 - *records*: uniformly sampled signals ``x_k = x(k / fs)`` of any length, as a rig or an
   importer gives them; coefficients by least squares at a known frequency
-  (:func:`fourier_project` on given phases, :func:`fourier_fit` on a record), trimmed to
-  whole periods where the discrete projection must equal the integral of eq. 3.3
-  (:func:`whole_periods`);
+  (:func:`fourier_project` on given phases, :func:`fourier_fit` on a record,
+  :func:`fourier_project_segments` period by period, :func:`fourier_project_batch` for
+  many records at once), trimmed to whole periods where the discrete projection must
+  equal the integral of eq. 3.3 (:func:`whole_periods`);
 - *one period on a uniform grid* (collocation meshes, resampled orbits):
   :func:`fourier_coefficients` by FFT and :func:`evaluate_fourier`.
 
@@ -30,6 +31,8 @@ __all__ = [
     "fourier_coefficients",
     "fourier_fit",
     "fourier_project",
+    "fourier_project_batch",
+    "fourier_project_segments",
     "polar_project",
     "uniform_basis",
     "usable_harmonics",
@@ -140,18 +143,127 @@ def fourier_project(
         w = np.sqrt(np.asarray(weights, dtype=float))
         B = B * w[:, None]
         x = x * (w if x.ndim == 1 else w[:, None])
-    # normal equations: the Fourier basis is near-orthogonal on whole periods, so B^T B is
-    # well conditioned and this is ~50x cheaper than an SVD-based lstsq on long records
-    BtB = B.T @ B
-    # condition number below 1e10 (short or gappy records may fail it): from the
-    # eigenvalues of the symmetric B^T B, half the cost of the SVD of np.linalg.cond
+    return _solve_normal(B, x)
+
+
+def fourier_project_batch(
+    x: np.ndarray, basis: np.ndarray, weights: np.ndarray | None = None
+) -> np.ndarray:
+    """:func:`fourier_project` of ``p`` independent records at once (e.g. the periods of
+    one record, each fitted on its own): one stacked normal-equation solve.
+
+    Records of unequal lengths are padded to a common length with rows of zeros in both
+    ``x`` and ``basis`` (a zero row adds nothing to the normal equations).
+
+    Parameters
+    ----------
+    x : array of shape (p, n) or (p, n, m)
+    basis : array of shape (p, n, 2q+1)
+        :func:`fourier_basis` of each record's phases.
+    weights : array of shape (p, n), optional
+        Quadrature weights, as in :func:`fourier_project`.
+
+    Returns
+    -------
+    ndarray of shape (p, 2q+1) or (p, 2q+1, m)
+    """
+    x = np.asarray(x, dtype=float)
+    B = np.asarray(basis, dtype=float)
+    if weights is not None:
+        w = np.sqrt(np.asarray(weights, dtype=float))
+        B = B * w[..., None]
+        x = x * (w if x.ndim == 2 else w[..., None])
+    if x.ndim == 2:
+        return _solve_normal(B, x[..., None])[..., 0]
+    return _solve_normal(B, x)
+
+
+def fourier_project_segments(
+    x: np.ndarray, theta: np.ndarray, edges: np.ndarray, n_harmonics: int
+) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`fourier_project` of each segment ``[edges[k], edges[k+1])`` of one record on
+    its own (e.g. period by period), with their residuals.
+
+    The phases must advance by a constant step (a uniformly sampled record at a fixed
+    frequency): every segment's basis is then one basis ``B0`` of the step rotated by the
+    segment's first phase, so the fits share one normal matrix per segment length, and the
+    coefficients on ``B0`` are rotated back (``a_j, b_j`` by the angle ``j θ_lo``).
+
+    Parameters
+    ----------
+    x : array of shape (n,) or (n, m)
+    theta : array of shape (n,)
+        Phase of each sample, ``θ_0 + k Δθ``.
+    edges : sequence of int
+        Increasing sample indices; segment ``k`` is ``[edges[k], edges[k+1])``.
+    n_harmonics : int
+
+    Returns
+    -------
+    coef : ndarray of shape (p, 2q+1) or (p, 2q+1, m)
+        One row ``[c0, a_1..a_q, b_1..b_q]`` per segment.
+    residual : ndarray of shape (edges[-1] - edges[0],) or (.., m)
+        Samples minus their segment's fitted series, segments in order.
+
+    Raises
+    ------
+    BifidInputError
+        If the phases do not advance by a constant step.
+    """
+    x = np.asarray(x, dtype=float)
+    X = x[:, None] if x.ndim == 1 else x
+    theta = np.asarray(theta, dtype=float)
+    step = (theta[-1] - theta[0]) / max(theta.shape[0] - 1, 1)
+    if np.ptp(np.diff(theta)) > 1e-9 * abs(step):
+        raise BifidInputError("segment fits need phases that advance by a constant step.")
+    q, m = int(n_harmonics), X.shape[1]
+    edges = np.asarray(edges, dtype=int)
+    lo, size = edges[:-1], np.diff(edges)
+    B0 = _basis(step * np.arange(int(np.max(size))), q)
+    c = np.empty((lo.shape[0], 2 * q + 1, m))
+    for length in np.unique(size):  # one normal matrix per segment length
+        sel = np.flatnonzero(size == length)
+        rhs = np.stack([X[k : k + length] for k in lo[sel]], axis=1).reshape(length, -1)
+        c[sel] = _solve_normal(B0[:length], rhs).reshape(2 * q + 1, -1, m).transpose(1, 0, 2)
+    fit = (B0 @ c.transpose(1, 0, 2).reshape(2 * q + 1, -1)).reshape(B0.shape[0], -1, m)
+    residual = np.empty((edges[-1] - edges[0], m))
+    for k, (start, length) in enumerate(zip(lo - edges[0], size, strict=True)):
+        residual[start : start + length] = X[lo[k] : lo[k] + length] - fit[:length, k]
+    # rotate back: the basis of segment k is B0 at phases shifted by θ_lo
+    jt = np.multiply.outer(theta[lo], np.arange(1, q + 1))[..., None]
+    cos, sin = np.cos(jt), np.sin(jt)
+    a, b = c[:, 1 : q + 1].copy(), c[:, q + 1 :].copy()
+    c[:, 1 : q + 1] = a * cos - b * sin
+    c[:, q + 1 :] = a * sin + b * cos
+    return (c[..., 0], residual[:, 0]) if x.ndim == 1 else (c, residual)
+
+
+def _solve_normal(B: np.ndarray, x: np.ndarray) -> np.ndarray:
+    """Least-squares ``B c = x`` for one design matrix ``(n, k)`` or a stack ``(p, n, k)``.
+
+    Normal equations: the Fourier basis is near-orthogonal on whole periods, so ``BᵀB`` is
+    well conditioned and this is ~50x cheaper than an SVD-based lstsq on long records.
+    Systems whose condition number exceeds 1e10 (short or gappy records) fall back to
+    lstsq; the test uses the eigenvalues of the symmetric ``BᵀB`` (half the cost of the
+    SVD of ``np.linalg.cond``)."""
+    Bt = np.swapaxes(B, -1, -2)
+    BtB = Bt @ B
     try:
         ev = np.linalg.eigvalsh(BtB)
     except np.linalg.LinAlgError:
-        ev = np.array([0.0, 1.0])
-    if ev[0] > 1e-10 * ev[-1]:
-        return np.linalg.solve(BtB, B.T @ x)
-    return np.linalg.lstsq(B, x, rcond=None)[0]
+        ev = np.zeros(BtB.shape[:-1])
+        ev[..., -1] = 1.0
+    good = ev[..., 0] > 1e-10 * ev[..., -1]
+    if B.ndim == 2:
+        if good:
+            return np.linalg.solve(BtB, Bt @ x)
+        return np.linalg.lstsq(B, x, rcond=None)[0]
+    c = np.empty(B.shape[:1] + B.shape[2:] + x.shape[2:])
+    if np.any(good):
+        c[good] = np.linalg.solve(BtB[good], Bt[good] @ x[good])
+    for i in np.flatnonzero(~good):
+        c[i] = np.linalg.lstsq(B[i], x[i], rcond=None)[0]
+    return c
 
 
 def evaluate_series(
