@@ -334,11 +334,31 @@ def fourier_fit(x: np.ndarray, omega: float, sample_rate: float, n_harmonics: in
     BifidInputError
         For non-finite samples, or a frequency the samples cannot resolve.
     """
+    coefs, _ = fourier_fit_columns(
+        np.asarray(x, dtype=float)[:, None], omega, sample_rate, n_harmonics
+    )
+    return coefs[0]
+
+
+def fourier_fit_columns(
+    x: np.ndarray, omega: float, sample_rate: float, n_harmonics: int
+) -> tuple[list[np.ndarray], np.ndarray]:
+    """:func:`fourier_fit` of every signal (column) of a record ``(n, m)`` on one design
+    matrix: the coefficients per signal and the matrix (rows: samples; pass it as
+    ``basis`` to :func:`evaluate_series` at the samples).
+
+    Raises
+    ------
+    BifidInputError
+        For non-finite samples, or a frequency the samples cannot resolve.
+    """
     x = np.asarray(x, dtype=float)
     if not np.all(np.isfinite(x)):
         raise BifidInputError("cannot fit a Fourier series to non-finite samples.")
     K = usable_harmonics(x.shape[0], omega, sample_rate, n_harmonics)
-    return fourier_project(x, omega * np.arange(x.shape[0]) / sample_rate, K)
+    theta = omega * np.arange(x.shape[0]) / sample_rate
+    B = fourier_basis(theta, K)
+    return [fourier_project(x[:, k], theta, K, basis=B) for k in range(x.shape[1])], B
 
 
 def fourier_coefficients(values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -30,7 +30,7 @@ from bifid.identify.hopf_hybrid._polar import (
     polygon_centroid_np,
     whole_turns,
 )
-from bifid.signal import evaluate_series, fourier_basis, fourier_project, usable_harmonics
+from bifid.signal import evaluate_series, fourier_fit_columns
 
 
 @dataclass
@@ -335,29 +335,8 @@ def measured_amplitude(signals: np.ndarray, omega: float, sample_rate: float) ->
     model predicts them)."""
     theta = np.linspace(0, 2 * np.pi, 2048, endpoint=False)
     nh = int(max(1, min(20, (len(signals) - 1) // 8)))
-    coefs, _ = record_series(signals, omega, sample_rate, nh)
+    coefs, _ = fourier_fit_columns(signals, omega, sample_rate, nh)
     return np.array([np.max(np.abs(evaluate_series(c, theta))) for c in coefs])
-
-
-def record_series(
-    x: np.ndarray, omega: float, sample_rate: float, n_harmonics: int
-) -> tuple[list[np.ndarray], np.ndarray]:
-    """:func:`bifid.signal.fourier_fit` of every signal (column) of a record on one design
-    matrix: the coefficients per signal and the matrix (rows: samples; pass it as
-    ``basis`` to :func:`bifid.signal.evaluate_series` at the samples).
-
-    Raises
-    ------
-    BifidInputError
-        For non-finite samples, or a frequency the samples cannot resolve.
-    """
-    x = np.asarray(x, dtype=float)
-    if not np.all(np.isfinite(x)):
-        raise BifidInputError("cannot fit a Fourier series to non-finite samples.")
-    K = usable_harmonics(x.shape[0], omega, sample_rate, n_harmonics)
-    theta = omega * np.arange(x.shape[0]) / sample_rate
-    B = fourier_basis(theta, K)
-    return [fourier_project(x[:, k], theta, K, basis=B) for k in range(x.shape[1])], B
 
 
 def measured_amplitudes(data: LCOData, omega: np.ndarray) -> np.ndarray:

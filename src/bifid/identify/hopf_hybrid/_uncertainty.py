@@ -8,7 +8,7 @@ the orbits (a residual bootstrap for a fixed design, Efron & Tibshirani 1993, §
 record :math:`x_i(t_j)` of orbit :math:`i` (all signals, samples :math:`j = 1..N_i`) is
 split into its periodic part, the least-squares Fourier series of
 :data:`NOISE_HARMONICS` harmonics at the record's frequency :math:`\omega_i`
-(:func:`bifid.signal.fourier_fit`, :func:`._prepare.record_series`), and the residual:
+(:func:`bifid.signal.fourier_fit`, :func:`bifid.signal.fourier_fit_columns`), and the residual:
 
 .. math:: x_i(t_j) = \hat p_i(t_j) + \hat e_{ij},\qquad
     x^{*b}_i(t_j) = \hat p_i(t_j) + \sqrt{\frac{N_i}{N_i - P}}\;\hat e_{i J_{ij}^b},\qquad
@@ -113,8 +113,8 @@ from bifid.identify._records import LCOData
 from bifid.identify.hopf_hybrid import _cycles as cy
 from bifid.identify.hopf_hybrid._cv import refit
 from bifid.identify.hopf_hybrid._normal_form import raw_a2
-from bifid.identify.hopf_hybrid._prepare import record_series
 from bifid.identify.hopf_hybrid._state import HybridState, states_from_json, states_to_json
+from bifid.signal import fourier_fit_columns
 
 __all__ = [
     "DOF_FRACTION",
@@ -160,7 +160,7 @@ def noise_split(data: LCOData) -> list[tuple[np.ndarray, np.ndarray]]:
         if not (math.isfinite(w) and w > 0):
             out.append((x, np.zeros_like(x)))
             continue
-        coefs, basis = record_series(x, w, fs, NOISE_HARMONICS)
+        coefs, basis = fourier_fit_columns(x, w, fs, NOISE_HARMONICS)
         p = np.stack([basis @ c for c in coefs], axis=1)  # the series at the samples
         n, n_coef = len(x), len(coefs[0])
         inflate = math.sqrt(n / (n - n_coef)) if n > n_coef else 1.0
