@@ -645,7 +645,7 @@ def duffing(quick: bool) -> tuple[dict, dict]:
 
 
 def em_oscillator() -> tuple[dict, dict]:
-    from bifid.data._matlab import em_dataset
+    from bifid.data import em_dataset
 
     files = {
         k: DATA / f"{k}.mat" for k in ("scurve_16p5Hz", "scurve_16p6Hz", "backbone_1", "backbone_2")
