@@ -199,10 +199,16 @@ def model_cycles(
     key += (float(ds_max),)
     if key in _CYCLES:  # (a campaign's retries ask for the cycles its defaults computed)
         return _CYCLES[key]
-    _CYCLES[key] = _model_cycles(system, p, param, lo, hi, ds_max)
-    while len(_CYCLES) > 8:
-        _CYCLES.pop(next(iter(_CYCLES)))
+    _remember(_CYCLES, key, _model_cycles(system, p, param, lo, hi, ds_max), 8)
     return _CYCLES[key]
+
+
+def _remember(cache: dict, key: tuple, value: Any, size: int) -> None:
+    """``cache[key] = value``, the oldest entries dropped beyond ``size`` (the per-process
+    caches of this module: a campaign's retries ask again for what its defaults computed)."""
+    cache[key] = value
+    while len(cache) > size:
+        cache.pop(next(iter(cache)))
 
 
 _CYCLES: dict[tuple, tuple[list, float]] = {}
@@ -420,9 +426,9 @@ def retry_controller(
         cycles = _crossings(system, p, param, value, window)
         if orbit is not None:
             cycles = [cycles_at(system, p, param, value, window)[orbit]]
-        _DESIGNS[key] = _design(system, p, param, value, cycles, x1, x2, outputs, orbit)
-    while len(_DESIGNS) > 64:
-        _DESIGNS.pop(next(iter(_DESIGNS)))
+        _remember(
+            _DESIGNS, key, _design(system, p, param, value, cycles, x1, x2, outputs, orbit), 64
+        )
     return _DESIGNS[key]
 
 
@@ -455,13 +461,19 @@ def cycles_at(
     (:func:`model_cycles` over ``window``): ``(λ, orbit (M, n), period)``, Newton-
     corrected at ``λ = value`` from the nearer branch cycle (else the other), else the
     nearer as it is."""
-    cycles = _crossings(system, p, param, value, window)
     key = ("at", system.name, id(system.field), tuple(np.asarray(p, float).tolist()), value)
     key += (param, tuple(window))
     if key not in _DESIGNS:
-        _DESIGNS[key] = [
-            _at_value(system, p, param, value, cycles[k : k + 2]) for k in range(0, len(cycles), 2)
-        ]
+        cycles = _crossings(system, p, param, value, window)
+        _remember(
+            _DESIGNS,
+            key,
+            [
+                _at_value(system, p, param, value, cycles[k : k + 2])
+                for k in range(0, len(cycles), 2)
+            ],
+            64,
+        )
     return _DESIGNS[key]
 
 

@@ -358,7 +358,7 @@ def fourier_fit_columns(
     K = usable_harmonics(x.shape[0], omega, sample_rate, n_harmonics)
     theta = omega * np.arange(x.shape[0]) / sample_rate
     B = fourier_basis(theta, K)
-    return [fourier_project(x[:, k], theta, K, basis=B) for k in range(x.shape[1])], B
+    return list(fourier_project(x, theta, K, basis=B).T), B
 
 
 def fourier_coefficients(values: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
