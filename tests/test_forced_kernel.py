@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import json
 import math
+import warnings
 from pathlib import Path
 
 import jax
@@ -24,7 +25,6 @@ from bifid.identify import ForcedKernelModel, GPRegressor, band_coverage, load
 from bifid.identify.forced_kernel import neg_log_marginal_likelihood, sample_eval
 
 C, K, W0, KAPPA = 0.0015, 0.0005, 1.0, 0.5
-NS = 16  # posterior samples of every band (one compiled shape for the whole file)
 TRAIN_F = (0.007, 0.01)
 
 
@@ -146,6 +146,19 @@ def test_gp_selection_recovers_noise_instead_of_interpolating():
         assert gp.train_rmse_ > 0.02
 
 
+def test_gp_hyperparameter_errors_match_the_fisher_information():
+    """The noise level of n Gaussian residuals has Fisher information 2n in log σ, so its
+    standard error is σ / sqrt(2n) (the smooth part takes a few effective points)."""
+    rng = np.random.default_rng(3)
+    n = 200
+    x = rng.uniform(0, 3, (n, 1))
+    y = np.sin(2 * x[:, 0]) + 0.05 * rng.normal(size=n)
+    gp = GPRegressor(n_restarts=0).fit(x, y)
+    hp, se = gp.hyperparameters_, gp.hyperparameter_errors_
+    assert se["noise_std"] / hp["noise_std"] == pytest.approx(1 / math.sqrt(2 * n), rel=0.15)
+    assert 0 < se["length_scales"][0] < 0.5 * hp["length_scales"][0]
+
+
 def test_gp_pathwise_samples_have_the_posterior_moments():
     rng = np.random.default_rng(3)
     x = rng.uniform(0, 3, (25, 2))
@@ -180,7 +193,8 @@ def test_fit_recovers_forcing_scale_and_reduced_dynamics(model):
 
 @pytest.mark.parametrize("forcing", [0.004, 0.012])
 def test_frc_at_untrained_forcing_matches_the_exact_curve(model, forcing):
-    br = model.frc(forcing, (0.97, 1.03), n_samples=NS)
+    with pytest.warns(UserWarning, match="outside the trained range"):  # 0.007..0.01
+        br = model.predict_diagram(forcing=forcing, range=(0.97, 1.03), level=0.95).branches[0]
     g = KAPPA * forcing
     (peak,) = br.special("peak")
     assert peak.data["amplitude"] == pytest.approx(g / C, rel=1e-3)
@@ -198,7 +212,7 @@ def test_frc_at_untrained_forcing_matches_the_exact_curve(model, forcing):
     clear = np.abs(det) > 0.02 * np.abs(det).max()
     assert np.array_equal(br.stable[clear], det[clear] > 0)
     assert np.any(det < 0) == (folds.size == 2)
-    # band: the exact curve is inside it at most points; wider when extrapolating
+    # interval: the exact curve is inside it at most points
     cov = band_coverage(br, om, rho, np.pi - psi)
     assert cov["n"] > 50 and cov["coverage"] > 0.6
 
@@ -220,16 +234,22 @@ def test_fit_from_scurves_with_default_settings():
 
 
 def test_band_widens_away_from_the_data(model):
-    inside = model.frc(0.0085, (0.97, 1.03), n_samples=NS)
-    outside = model.frc(0.02, (0.97, 1.05), n_samples=NS)
+    def predicted(**query):
+        with warnings.catch_warnings():  # the extrapolation warning is tested elsewhere
+            warnings.simplefilter("ignore", UserWarning)
+            return model.predict_diagram(level=0.95, **query).branches[0]
 
-    def width_at_peak(br):  # amplitude width of the band where the FRC peaks
+    def width_at_peak(br):  # amplitude width of the interval where the FRC peaks
         i = int(np.argmax(br.data["observed_amplitude"]))
-        return abs(br.data["band_upper"][i, 1] - br.data["band_lower"][i, 1])
+        lo, hi = br.intervals["amplitude"]
+        return abs(hi[i, 0] - lo[i, 0])
 
+    inside = predicted(forcing=0.0085, range=(0.97, 1.03))
+    outside = predicted(forcing=0.02, range=(0.97, 1.05))
     assert width_at_peak(outside) > 3 * width_at_peak(inside)
-    bb = model.backbone((0.1, 8.0), n_samples=NS)
-    width = np.diff(bb.data["band_omega"], axis=1)[:, 0]
+    bb = predicted(kind="backbone", range=(0.1, 8.0))
+    lo, hi = bb.intervals["omega"]
+    width = np.asarray(hi) - np.asarray(lo)
     trained = bb.params <= model.rho_range_[1]
     assert np.median(width[~trained]) > 3 * np.median(width[trained])
 
@@ -351,6 +371,9 @@ def test_cli_fit_and_predict(dataset, tmp_path: Path, bifid_cli):
     payload = r.json
     assert {"parameters", "standard_errors", "losses", "settings"} <= set(payload)
     assert payload["parameters"]["forcing_scale"] == pytest.approx(KAPPA, rel=1e-3)
+    errors = payload["standard_errors"]
+    assert 0 < errors["forcing_scale"] < 1e-3 * KAPPA  # exact training data
+    assert set(errors["b"]) == set(payload["parameters"]["b"])
     r = bifid_cli(
         "predict",
         tmp_path / "m",

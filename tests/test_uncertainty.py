@@ -284,7 +284,7 @@ def test_kernel_frc_samples_are_solved_at_the_peak() -> None:
     sampled model leaves a residual at the rounding floor of its kernel sums and is kept;
     the sampled peaks lie around the exact one."""
     m = kernel_fit(0)
-    br = m.frc(K_PREDICT, (0.95, 1.2), n_samples=64, seed=1)
+    br = m.predict_diagram(forcing=K_PREDICT, range=(0.95, 1.2), level=0.95).branches[0]
     rho_s = br.data["sample_amplitude"]
     i = int(np.argmax(np.asarray(br.solutions)[:, 0]))
     near = rho_s[:, max(i - 5, 0) : i + 6]

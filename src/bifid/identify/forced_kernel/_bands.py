@@ -176,46 +176,46 @@ def add_backbone_band(
 def band_coverage(
     branch: Branch, true_omega: Any, true_amplitude: Any, true_phase: Any
 ) -> dict[str, float]:
-    """Fraction of a model FRC's band points whose true curve lies inside the band.
+    """Fraction of a predicted FRC's points whose amplitude interval holds the true curve.
 
-    The true curve (Ω, A, lag) is interpolated (cubic splines in the lag) at the model
-    branch's phases (ψ is a regular parameter along both); its offset from the mean curve
-    along the band's normal is compared with the band's offsets. Returns ``coverage``,
-    ``n`` (points compared) and the median band width (scaled units).
+    ``branch`` is an FRC of ``predict_diagram(forcing=F, level=...)`` (its
+    ``intervals["amplitude"]``, :mod:`._uncertainty`); the true curve (Ω, A, lag) is
+    interpolated (cubic splines in the lag) at the branch's phases (ψ is a regular
+    parameter along both) and its amplitude there compared with the interval. Points
+    outside the true curve's phase range or without an interval are not counted. Returns
+    ``coverage``, ``n`` (points compared) and ``median_width`` (the interval's median
+    width relative to the amplitude).
 
     Raises
     ------
     BifidInputError
-        If the branch has no band or the true curve has fewer than 4 distinct phases.
+        If the branch has no amplitude interval or the true curve has fewer than 4
+        distinct phases.
     """
-    if "band_offset" not in branch.data:
-        raise BifidInputError("the branch has no band: compute it with n_samples > 0.")
+    if "amplitude" not in branch.intervals:
+        raise BifidInputError(
+            "the branch has no amplitude interval: predict it with predict_diagram(level=...)."
+        )
     tp = np.asarray(true_phase, float)
     order = np.argsort(tp)
-    tp, to, ta = (
-        tp[order],
-        np.asarray(true_omega, float)[order],
-        np.asarray(true_amplitude, float)[order],
-    )
+    tp, ta = tp[order], np.asarray(true_amplitude, float)[order]
     keep = np.concatenate([[True], np.diff(tp) > 0])
     if np.sum(keep) < 4:
         raise BifidInputError("the true curve needs at least 4 points of distinct phase.")
-    tp, to, ta = tp[keep], to[keep], ta[keep]
+    tp, ta = tp[keep], ta[keep]
     lag = np.asarray(branch.data["phase"])
     inside = (lag >= tp.min()) & (lag <= tp.max())
     # cubic interpolation in the phase (linear interpolation errors of a dense branch are
-    # already comparable with the band widths of a model trained on exact data)
-    at = np.clip(lag, tp.min(), tp.max())
-    sc = branch.meta["scales"]
-    n_om, n_r = branch.data["normal"][:, 0], branch.data["normal"][:, 1]
-    d_t = (CubicSpline(tp, to)(at) - branch.params) / sc["omega"] * n_om + (
-        CubicSpline(tp, ta)(at) - branch.data["amplitude"][:, 0]
-    ) / sc["amplitude"] * n_r
-    lo, hi = branch.data["band_offset"][:, 0], branch.data["band_offset"][:, 1]
+    # already comparable with the widths of a model trained on exact data)
+    truth = CubicSpline(tp, ta)(np.clip(lag, tp.min(), tp.max()))
+    lo, hi = (np.asarray(v, float)[:, 0] for v in branch.intervals["amplitude"])
     valid = inside & np.isfinite(lo) & np.isfinite(hi)
-    cov = (d_t >= lo) & (d_t <= hi)
+    cov = (truth >= lo) & (truth <= hi)
+    amp = np.asarray(branch.data["amplitude"], float)[:, 0]
     return {
         "coverage": float(np.mean(cov[valid])) if np.any(valid) else float("nan"),
         "n": int(np.sum(valid)),
-        "median_width": float(np.median((hi - lo)[valid])) if np.any(valid) else float("nan"),
+        "median_width": float(np.median(((hi - lo) / amp)[valid]))
+        if np.any(valid)
+        else float("nan"),
     }

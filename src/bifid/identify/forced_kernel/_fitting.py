@@ -22,7 +22,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from bifid.errors import BifidInputError, ConvergenceError, ConvergenceWarning
-from bifid.identify.forced_kernel._gp import GPRegressor, HyperBounds, minimize_multistart
+from bifid.identify.forced_kernel._gp import (
+    GPRegressor,
+    HyperBounds,
+    laplace_log_errors,
+    minimize_multistart,
+)
 from bifid.identify.forced_kernel._gp_core import neg_log_marginal_likelihood, padded_args
 from bifid.identify.forced_kernel._reduced import ReducedModel, ab_grid, eigs_mean_g
 from bifid.signal import evaluate_series, fourier_project
@@ -137,11 +142,13 @@ def fit_kappa(
             ConvergenceWarning,
             stacklevel=3,
         )
+    se_log = laplace_log_errors(lambda z: kernel(z, *consts)[1], best.x, lo, hi)
     return kappa, {
         "method": "marginal likelihood",
         "kappa_least_squares": kappa_ls,
         "objective": float(best.fun),
         "at_bound": at_bound,
+        "standard_error": kappa * float(se_log[-1]),
     }
 
 

@@ -10,7 +10,7 @@ starts, the fitted :class:`~._gp_core.GPState` kept for pure-JAX evaluation.
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from typing import Any, Literal
 
@@ -33,7 +33,7 @@ from bifid.identify.forced_kernel._gp_core import (
     padded_args,
 )
 
-__all__ = ["GPRegressor", "HyperBounds", "minimize_multistart"]
+__all__ = ["GPRegressor", "HyperBounds", "laplace_log_errors", "minimize_multistart"]
 
 Criterion = Literal["ml", "loo"]
 
@@ -96,6 +96,38 @@ def minimize_multistart(
         )
     best.nfev_total = nfev
     return best
+
+
+def laplace_log_errors(
+    gradient: Callable[[jnp.ndarray], Any],
+    z: np.ndarray,
+    lo: np.ndarray,
+    hi: np.ndarray,
+    step: float = 1e-4,
+) -> np.ndarray:
+    """Standard errors of log-parameters ``z`` at a minimum of a negative log likelihood.
+
+    The Laplace approximation: covariance = inverse Hessian, the Hessian by central
+    differences of ``gradient`` (step ``step`` in ``z``). A component within ``1e-3`` of a
+    search bound (``lo``, ``hi``) is not identified by the data: NaN, and it is left out
+    of the Hessian; a direction of zero or negative curvature gives ``inf``.
+    """
+    z = np.asarray(z, dtype=float)
+    hess = np.empty((z.size, z.size))
+    for i in range(z.size):
+        dz = np.zeros(z.size)
+        dz[i] = step
+        g_plus = np.asarray(gradient(jnp.asarray(z + dz)), dtype=float)
+        g_minus = np.asarray(gradient(jnp.asarray(z - dz)), dtype=float)
+        hess[i] = (g_plus - g_minus) / (2 * step)
+    free = (z > np.asarray(lo) + 1e-3) & (z < np.asarray(hi) - 1e-3)
+    var = np.full(z.size, np.nan)
+    if np.any(free):
+        lam, vec = np.linalg.eigh(0.5 * (hess + hess.T)[np.ix_(free, free)])
+        inv_lam = np.where(lam > 0, 1.0 / np.where(lam > 0, lam, 1.0), np.inf)
+        with np.errstate(invalid="ignore"):  # 0 · inf where a direction has no loading
+            var[free] = np.nansum(vec**2 * inv_lam, axis=1)
+    return np.sqrt(var)
 
 
 @dataclass(frozen=True)
@@ -433,6 +465,40 @@ class GPRegressor:
             "length_scales": (np.exp(np.asarray(log_l)) * np.asarray(st.x_scale)).tolist(),
             "basis_std": (np.exp(np.asarray(log_t)) * ys).tolist(),
             "noise_std": float(jnp.exp(log_n)) * ys,
+        }
+
+    @property
+    def hyperparameter_errors_(self) -> dict[str, Any]:
+        """Standard errors of :attr:`hyperparameters_` (same keys, raw units).
+
+        Laplace approximation of the marginal likelihood at the selected hyperparameters
+        (R&W §5.4.1, :func:`laplace_log_errors` of ``-log p(y | X, θ)``, eq. 5.8), carried
+        to raw units by the delta method (``σ_raw = value · σ_log``). With
+        ``criterion="loo"`` the curvature is still the marginal likelihood's (an
+        approximation: the selected θ is not its maximum).
+        """
+        self._check()
+        st = self.state_
+        d, m = st.n_dim, len(self.basis)
+        theta = np.asarray(st.theta, dtype=float)
+        _, lo, hi = self._layout(d)
+        grad = _objective(self.basis, "ml")
+        args = (st.x, self._padded["y"], st.x_scale, st.x_center, self._padded["extra_var"])
+        se_log = laplace_log_errors(lambda th: grad(th, *args, st.mask)[1], theta, lo, hi)
+        raw = self.hyperparameters_
+        se = se_log * np.concatenate(
+            [
+                [raw["signal_std"]],
+                raw["length_scales"],
+                raw["basis_std"],
+                [raw["noise_std"]],
+            ]
+        )
+        return {
+            "signal_std": float(se[0]),
+            "length_scales": se[1 : 1 + d].tolist(),
+            "basis_std": se[1 + d : 1 + d + m].tolist(),
+            "noise_std": float(se[1 + d + m]),
         }
 
     def predict(self, X: Any, *, return_std: bool = False) -> np.ndarray | tuple[np.ndarray, ...]:

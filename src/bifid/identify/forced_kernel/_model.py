@@ -14,11 +14,6 @@ from bifid.errors import BifidInputError, ConvergenceError
 from bifid.identify._base import DiagramQuery, IdentifiedModel, Orbit
 from bifid.identify._persistence import register_model_type
 from bifid.identify.forced_kernel import _predict as fp
-from bifid.identify.forced_kernel._bands import (
-    add_backbone_band,
-    add_frc_band,
-    add_scurve_band,
-)
 from bifid.identify.forced_kernel._data import training_data, usable_points
 from bifid.identify.forced_kernel._fitting import (
     a_samples,
@@ -335,19 +330,13 @@ class ForcedKernelModel(IdentifiedModel):
         forcing: float,
         omega_range: Any = None,
         *,
-        n_samples: int = 0,
-        band_level: float = 0.95,
-        seed: int = 0,
         options: ContinuationOptions | None = None,
         rho_cap: float | None = None,
     ) -> Branch:
-        """Forced response curve at ``F`` (:func:`._predict.frc`); with ``n_samples`` > 0 a
-        posterior-sample band at ``band_level`` (:func:`._bands.add_frc_band`)."""
+        """Forced response curve at ``F`` (:func:`._predict.frc`, eq. 6.10), the posterior
+        mean; intervals: ``predict_diagram(forcing=F, level=...)``."""
         self._check_fitted()
-        br = fp.frc(self.reduced_, forcing, omega_range, options=options, rho_cap=rho_cap)
-        if n_samples > 0:
-            add_frc_band(self.reduced_, br, n_samples, band_level, seed)
-        return br
+        return fp.frc(self.reduced_, forcing, omega_range, options=options, rho_cap=rho_cap)
 
     def scurve(
         self,
@@ -355,33 +344,18 @@ class ForcedKernelModel(IdentifiedModel):
         forcing_range: Any = None,
         *,
         n_points: int = 400,
-        n_samples: int = 0,
-        band_level: float = 0.95,
-        seed: int = 0,
         rho_cap: float | None = None,
     ) -> Branch:
-        """S-curve at Ω (:func:`._predict.scurve`), with a posterior-sample band of F."""
+        """S-curve at Ω (:func:`._predict.scurve`), the posterior mean; intervals:
+        ``predict_diagram(omega=Ω, level=...)``."""
         self._check_fitted()
-        br = fp.scurve(self.reduced_, omega, forcing_range, n_points=n_points, rho_cap=rho_cap)
-        if n_samples > 0:
-            add_scurve_band(self.reduced_, br, n_samples, band_level, seed)
-        return br
+        return fp.scurve(self.reduced_, omega, forcing_range, n_points=n_points, rho_cap=rho_cap)
 
-    def backbone(
-        self,
-        amplitude_range: Any = None,
-        *,
-        n_points: int = 200,
-        n_samples: int = 0,
-        band_level: float = 0.95,
-        seed: int = 0,
-    ) -> Branch:
-        """Backbone curve (:func:`._predict.backbone`), with a posterior-sample band of Ω."""
+    def backbone(self, amplitude_range: Any = None, *, n_points: int = 200) -> Branch:
+        """Backbone curve (:func:`._predict.backbone`, eq. 6.21), the posterior mean;
+        intervals: ``predict_diagram(kind="backbone", level=...)``."""
         self._check_fitted()
-        br = fp.backbone(self.reduced_, amplitude_range, n_points=n_points)
-        if n_samples > 0:
-            add_backbone_band(self.reduced_, br, n_samples, band_level, seed)
-        return br
+        return fp.backbone(self.reduced_, amplitude_range, n_points=n_points)
 
     def _predict_diagram(self, query: DiagramQuery) -> Diagram:
         if (
@@ -503,7 +477,9 @@ class ForcedKernelModel(IdentifiedModel):
 
     def summary(self) -> dict[str, Any]:
         """``parameters`` (forcing scale, GP hyperparameters, linear frequency),
-        ``standard_errors`` (none yet), ``losses``, trained ranges and notes."""
+        ``standard_errors`` of the forcing scale (when fitted) and of the GP
+        hyperparameters (Laplace approximation of the marginal likelihood,
+        :attr:`GPRegressor.hyperparameter_errors_`), ``losses``, trained ranges and notes."""
         self._check_fitted()
         rf = self.reduced_
         params: dict[str, Any] = {
@@ -514,11 +490,18 @@ class ForcedKernelModel(IdentifiedModel):
             "omega_offset": rf.omega_c,
             "linear_frequency": self._linear_frequency(),
         }
+        errors: dict[str, Any] = {
+            "a": rf.gp_a.hyperparameter_errors_,
+            "b": rf.gp_b.hyperparameter_errors_,
+        }
+        if "standard_error" in self.kappa_info_:
+            errors["forcing_scale"] = self.kappa_info_["standard_error"]
         if rf.gp_phi is not None:
             params["phi"] = rf.gp_phi.hyperparameters_
+            errors["phi"] = rf.gp_phi.hyperparameter_errors_
         return {
             "parameters": params,
-            "standard_errors": {},
+            "standard_errors": errors,
             "losses": self.losses_,
             "n_train": self.n_train_,
             "trained_ranges": {
