@@ -129,43 +129,65 @@ def attach_orbits(data: dict, path: Path) -> None:
 
 def corrected(system, run: dict, orbit: dict, param: float, period: float) -> dict:
     """bifid's orbit through AUTO's printed point ``(param, period)``, Newton-corrected
-    from the nearest orbit of the branch on that orbit's mesh: at AUTO's parameter (its
-    period) and at AUTO's period (its parameter, where the branch is steep in the period)."""
-    import jax.numpy as jnp
-
-    from bifid.continuation import (
-        correct,
-        fourier_differentiation_matrix,
-        orbit_problem,
-        resample_orbit,
-    )
-    from bifid.continuation.truth import correct_orbit
-    from bifid.errors import BifidError
-
+    from the nearest orbit of the branch on that orbit's mesh (in a rescaled time, its
+    density worked out from the orbit, where the uniform mesh does not resolve it): at
+    AUTO's parameter (its period) and at AUTO's period (its parameter, where the branch is
+    steep in the period)."""
     out: dict = {}
     if "samples" not in orbit:
         return out
     M = max(64, int(orbit.get("n_mesh") or 64))
     pv = system.param_vector(run["set"])
-    try:
-        _, T = correct_orbit(
-            system, run["param"], param, orbit["samples"], orbit["period"], p=pv, n_mesh=M
-        )
-        out["period"] = T
-    except BifidError:
-        pass
-    n = system.n_states
-    V = resample_orbit(orbit["samples"], M)
-    D = fourier_differentiation_matrix(M)
-    idx = system.index(run["param"])
-    args = {"p": pv, "idx": jnp.asarray(idx), "dref": jnp.asarray((D @ V).ravel())}
-    y0 = np.concatenate([V.ravel(), [period, orbit["param"]]])
-    e = np.zeros_like(y0)
-    e[M * n] = 1.0
-    y, ok, _, _ = correct(orbit_problem(system.field, M, n), y0, e, period, args, tol=1e-11)
-    if ok:
-        out["param"] = float(y[-1])
+    S = np.asarray(orbit["samples"], dtype=float)
+    at_param = _newton_orbit(system, run["param"], pv, S, orbit["period"], param, M, fix="param")
+    if at_param is not None:
+        out["period"] = at_param[0]
+    at_period = _newton_orbit(system, run["param"], pv, S, period, orbit["param"], M, fix="period")
+    if at_period is not None:
+        out["param"] = at_period[1]
     return out
+
+
+def _newton_orbit(system, name, pv, samples, period, value, M, fix, passes=3):
+    """``(period, parameter)`` of the orbit corrected from ``samples`` (uniform times) on
+    ``M`` collocation points with the parameter (``fix="param"``) or the period fixed;
+    the mesh redistributed along the corrected orbit until it is resolved (None when
+    Newton fails or the orbit stays unresolved)."""
+    import jax.numpy as jnp
+
+    from bifid.continuation import correct, fourier_differentiation_matrix, orbit_problem
+    from bifid.continuation._density import convert_values, density_values
+    from bifid.continuation._mesh import MeshPolicy
+    from bifid.signal import spectral_tail
+
+    n = system.n_states
+    idx = system.index(name)
+    policy = MeshPolicy(n_mesh=M, max_mesh=M, rescale=True)
+    V0 = np.asarray(samples, dtype=float)
+    mesh = policy.new_mesh(V0, len(V0), M)
+    V = convert_values(V0, len(V0), mesh)
+    y = np.concatenate([V.ravel(), [period, value]])
+    k = M * n if fix == "period" else M * n + 1
+    for _ in range(passes):
+        V = y[: M * n].reshape(M, n)
+        args = {
+            "p": pv,
+            "idx": jnp.asarray(idx),
+            "dref": jnp.asarray((fourier_differentiation_matrix(M) @ V).ravel()),
+            "h": jnp.asarray(density_values(mesh)),
+        }
+        e = np.zeros_like(y)
+        e[k] = 1.0
+        y, ok, _, _ = correct(orbit_problem(system.field, M, n), y, e, y[k], args, tol=1e-11)
+        if not ok:
+            return None
+        V = y[: M * n].reshape(M, n)
+        if spectral_tail(V) <= 1e-9:
+            return float(y[M * n]), float(y[-1])
+        new = policy.new_mesh(V, mesh, M)
+        y = np.concatenate([convert_values(V, mesh, new).ravel(), y[M * n :]])
+        mesh = new
+    return None
 
 
 # ------------------------------------------------------------------------ comparison
@@ -294,8 +316,14 @@ def orbit_delta(system, run: dict, inside: list[dict], param: float, period: flo
     through AUTO's point (:func:`corrected`), the smaller of the period mismatch at
     ``param`` and the parameter mismatch at ``period``; where neither converges, the
     branch interpolated (:func:`curve_delta`, marked). None: the branch does not reach it."""
-    if len(inside) < 2 or not min(o["period"] for o in inside) <= period <= max(
-        o["period"] for o in inside
+    # AUTO prints its period rounded: a point at the end of the branch may lie up to one
+    # unit of its last digit outside the branch's periods
+    slack = unit(period)
+    if (
+        len(inside) < 2
+        or not min(o["period"] for o in inside) - slack
+        <= period
+        <= max(o["period"] for o in inside) + slack
     ):
         return None, None, ""
     ps = [o["param"] for o in inside]

@@ -17,6 +17,21 @@ The mesh follows the orbits (``_mesh``: refined where the spectral tail exceeds 
 tolerance, coarsened again where the orbits are smooth, up to ``max_mesh``); the
 branch's Floquet multipliers, special points and end are worked out in
 ``_orbit_branch``.
+
+**Rescaled time** (``ContinuationOptions.rescale``, ``_density``): the mesh points may
+sit at the physical times ``t(tau) = (T / 2 pi) int_0^tau h`` of a smooth positive
+density ``h`` of mean 1, fixed between mesh updates (``args["h"]``); the equations become
+
+.. math::
+
+    D_M v - \\frac{T}{2\\pi} h_k f(v_k, \\lambda) = 0,
+
+with the phase condition and the arclength unchanged in ``tau`` and ``h_k`` in the
+Jacobian's block diagonal and its ``T`` and ``lambda`` columns. At every mesh event the
+density is chosen to equidistribute the orbit's arclength, so a relaxation oscillation
+that needs thousands of uniform points is resolved on a few hundred. Everything that
+reads an orbit in time accounts for ``h`` (``_density`` module docstring); the branch's
+``solutions`` are samples at uniform times either way.
 """
 
 from __future__ import annotations
@@ -29,12 +44,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from bifid.continuation._branch import Branch, SpecialPoint
-from bifid.continuation._fourier import fourier_differentiation_matrix, fourier_grid
+from bifid.continuation._density import convert_values, density_values
+from bifid.continuation._fourier import fourier_differentiation_matrix, fourier_grid, resample_orbit
 from bifid.continuation._mesh import (
     MeshPolicy,
     Stage,
     mesh_tail,
-    resample_orbit,
     run_adaptive,
 )
 from bifid.continuation._options import ContinuationOptions
@@ -42,6 +57,7 @@ from bifid.continuation._orbit_bifurcations import STABILITY_SOURCES
 from bifid.continuation._orbit_branch import OrbitEnds, orbit_branch
 from bifid.continuation._palc import ZeroProblem, correct
 from bifid.errors import BifidInputError, ConvergenceError
+from bifid.signal import spectral_tail
 from bifid.systems import System
 
 Array = jnp.ndarray
@@ -55,13 +71,17 @@ def orbit_problem(field: Callable, n_mesh: int, n_states: int) -> ZeroProblem:
     """Collocation zero problem of autonomous periodic orbits (see module docstring).
 
     ``args = {"p": parameter vector, "idx": index of lambda, "dref": (M*n,) flattened
-    D_M v_ref}``. ``y`` has ``M*n + 2`` components: mesh values (row-major ``(M, n)``),
+    D_M v_ref}`` and optionally ``"h"``: (M,) the mesh density (default ones, the uniform
+    mesh; see ``_density``). ``y`` has ``M*n + 2`` components: mesh values (row-major ``(M, n)``),
     then ``T``, then ``lambda``.
     """
     M, n = n_mesh, n_states
     D = jnp.asarray(fourier_differentiation_matrix(M))
     vfield = jax.vmap(field, in_axes=(0, None))
     vjac = jax.vmap(jax.jacfwd(field), in_axes=(0, None))
+
+    def _density_column(args, M):
+        return args["h"][:, None] if "h" in args else jnp.ones((M, 1))
 
     def split(y, args):
         V = y[: M * n].reshape(M, n)
@@ -70,22 +90,24 @@ def orbit_problem(field: Callable, n_mesh: int, n_states: int) -> ZeroProblem:
 
     def residual(y, args):
         V, T, _, p = split(y, args)
-        R = D @ V - T / TWO_PI * vfield(V, p)
+        h = _density_column(args, M)
+        R = D @ V - T / TWO_PI * h * vfield(V, p)
         phase = jnp.sum(y[: M * n] * args["dref"]) / M
         return jnp.concatenate([R.ravel(), phase[None]])
 
     def jacobian(y, args):
         V, T, lam, p = split(y, args)
-        Jk = vjac(V, p)  # (M, n, n)
+        h = _density_column(args, M)
+        Jk = vjac(V, p) * h[:, :, None]  # (M, n, n): h_k f_x(v_k)
         block = jnp.einsum("kij,kl->kilj", Jk, jnp.eye(M)).reshape(M * n, M * n)
         # kron(D, I) built at run time: as a compile-time constant XLA would fold a
         # (Mn)^2 array, which takes seconds for large meshes
         KD = jnp.kron(jax.lax.optimization_barrier(D), jnp.eye(n))
         dV = KD - T / TWO_PI * block
-        dT = -vfield(V, p).ravel() / TWO_PI
+        dT = -(h * vfield(V, p)).ravel() / TWO_PI
 
         def f_of_lam(l):
-            return vfield(V, args["p"].at[args["idx"]].set(l)).ravel()
+            return (h * vfield(V, args["p"].at[args["idx"]].set(l))).ravel()
 
         dlam = -T / TWO_PI * jax.jvp(f_of_lam, (lam,), (jnp.ones_like(lam),))[1]
         top = jnp.concatenate([dV, dT[:, None], dlam[:, None]], axis=1)
@@ -101,16 +123,18 @@ def orbit_weights(M: int, n: int) -> np.ndarray:
 
 
 def orbit_stage(system: System, p: Array, idx: int, M: int) -> Stage:
-    """The collocation problem of ``system``'s orbits on ``M`` points (``_mesh.Stage``)."""
+    """The collocation problem of ``system``'s orbits on the mesh ``M`` (``_mesh.Stage``; a
+    :class:`~bifid.continuation._density.Mesh` carries its density)."""
     n = system.n_states
-    D = fourier_differentiation_matrix(M)
+    D = fourier_differentiation_matrix(int(M))
+    h = jnp.asarray(density_values(M))
 
     def args_of(y, _prev=None):
         V = np.asarray(y[: M * n]).reshape(M, n)
-        return {"p": p, "idx": jnp.asarray(idx), "dref": jnp.asarray((D @ V).ravel())}
+        return {"p": p, "idx": jnp.asarray(idx), "dref": jnp.asarray((D @ V).ravel()), "h": h}
 
     return Stage(
-        problem=orbit_problem(system.field, M, n),
+        problem=orbit_problem(system.field, int(M), n),
         weights=orbit_weights(M, n),
         args=args_of,
         update_args=lambda y, args: args_of(y),
@@ -169,10 +193,13 @@ def hopf_orbits(
     Returns
     -------
     Branch
-        ``kind="periodic"``; ``solutions[:, :M*n+1]`` mesh values and period on the
-        largest mesh of the branch ``M = meta["n_mesh"]`` (orbits computed on coarser
-        meshes are interpolated exactly); ``data`` has ``period``, ``amplitude``
-        (n_points, n) = max_t|x_s(t)|, ``n_mesh`` (the mesh of each orbit),
+        ``kind="periodic"``; ``solutions[:, :M*n+1]`` the orbits at the uniform times
+        ``T k / M`` and the period, ``M = meta["n_mesh"]``: the largest mesh of the branch
+        (orbits computed on coarser meshes are interpolated exactly), or, for a branch
+        computed in a rescaled time (``options.rescale``), the fewest uniform samples
+        ``M_max 2^j`` that resolve every orbit (at most
+        ``_density.MAX_EXPORT_SAMPLES``; ``meta["rescaled"]``); ``data`` has ``period``,
+        ``amplitude`` (n_points, n) = max_t|x_s(t)|, ``n_mesh`` (the mesh of each orbit),
         ``floquet`` (n_points, n), ``floquet_log``, ``floquet_max``, ``spectral_tail``;
         verified special points "cycle_fold", "period_doubling", "torus" (candidates
         for what could not be verified).
@@ -181,7 +208,9 @@ def hopf_orbits(
         raise BifidInputError("hopf_orbits needs a located Hopf point (kind 'hopf' with data).")
     _check_stability(stability)
     options = options or ContinuationOptions()
-    policy = MeshPolicy.of(n_mesh, max_mesh, resolution_tol, adapt, system.n_states)
+    policy = MeshPolicy.of(
+        n_mesh, max_mesh, resolution_tol, adapt, system.n_states, rescale=options.rescale
+    )
     param = hopf.data.get("param_name") or system.default_param
     idx = system.index(param)
     p = jnp.asarray(hopf.data["p"] if p is None else p, dtype=jnp.float64)
@@ -198,7 +227,12 @@ def hopf_orbits(
     t0 = t0 / np.sqrt(t0 @ (stage.weights * t0))
     eps = options.ds if amplitude0 is None else float(amplitude0)
     D = fourier_differentiation_matrix(M)
-    args = {"p": p, "idx": jnp.asarray(idx), "dref": jnp.asarray((D @ direction).ravel())}
+    args = {
+        "p": p,
+        "idx": jnp.asarray(idx),
+        "dref": jnp.asarray((D @ direction).ravel()),
+        "h": jnp.ones(M),
+    }
     y_pred = y_h + eps * t0
     row = stage.weights * t0
     y1, ok, _, res = correct(
@@ -284,8 +318,12 @@ def periodic_orbits(
     if orbit.ndim != 2 or orbit.shape[1] != system.n_states:
         raise BifidInputError(f"orbit must have shape (M, {system.n_states}), got {orbit.shape}.")
     M = n_mesh or orbit.shape[0]
-    policy = MeshPolicy.of(M, max_mesh, resolution_tol, adapt, system.n_states)
+    policy = MeshPolicy.of(M, max_mesh, resolution_tol, adapt, system.n_states, options.rescale)
     V = resample_orbit(orbit, M) if orbit.shape[0] != M else orbit
+    if policy.rescale and policy.adapt and np.ptp(V) > 0 and spectral_tail(V) > resolution_tol:
+        # an orbit with fast phases: its points redistributed along its arclength
+        M = policy.new_mesh(orbit, orbit.shape[0], M)
+        V = convert_values(orbit, orbit.shape[0], M)
     n = system.n_states
     lam0 = float(p[idx])
     y0 = np.concatenate([V.ravel(), [period, lam0]])
@@ -322,6 +360,7 @@ def periodic_orbits(
         policy,
         options,
         n,
+        M0=M,
         stop=ends.stop,
         monitor=ends.monitor,
         progress=progress,

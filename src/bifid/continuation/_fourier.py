@@ -46,3 +46,22 @@ def fourier_differentiation_matrix(n_mesh: int) -> np.ndarray:
 def _check_mesh(n_mesh: int) -> None:
     if not isinstance(n_mesh, (int, np.integer)) or n_mesh < 8 or n_mesh % 2:
         raise BifidInputError(f"n_mesh must be an even integer >= 8, got {n_mesh!r}.")
+
+
+def resample_orbit(values: np.ndarray, n_mesh: int) -> np.ndarray:
+    """Trigonometric interpolation of periodic mesh values ``(M, n)`` onto ``n_mesh`` points.
+
+    Exact for the interpolant when refining; drops the harmonics above ``n_mesh/2`` when
+    coarsening (the Nyquist harmonic is split evenly, so real data stay real).
+    """
+    v = np.asarray(values, dtype=float)
+    M = v.shape[0]
+    if n_mesh == M:
+        return v.copy()
+    c = np.fft.rfft(v, axis=0)
+    if M % 2 == 0 and n_mesh > M:
+        c[M // 2] *= 0.5  # the Nyquist harmonic of the coarse mesh is a cosine: split it
+    if n_mesh < M:
+        c = c[: n_mesh // 2 + 1].copy()
+        c[-1] = 2.0 * c[-1].real  # the new Nyquist harmonic: its cosine, sampled
+    return np.fft.irfft(c, n=n_mesh, axis=0) * (n_mesh / M)

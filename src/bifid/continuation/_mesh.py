@@ -20,6 +20,15 @@ predictor–corrector driver:
   unresolved step is retried with smaller steps; when none is resolved the branch ends
   there with status ``"unresolved"`` and the reason.
 
+* **rescale** — with ``MeshPolicy.rescale`` a mesh is a :class:`~bifid.continuation.
+  _density.Mesh`: ``M`` points whose physical times follow a density chosen to
+  equidistribute the orbit's arclength when the mesh is set (``_density``); an
+  unresolved step first tries the same ``M`` redistributed along the last orbit, then
+  the next rung with its own density; a coarser rung is tried with its density at most
+  every ``HOLD_STEPS`` steps. :func:`remesh` carries points between any two meshes at
+  the same physical times, so arcs, common meshes and brackets work on rescaled runs
+  unchanged.
+
 No orbit whose tail exceeds ``tol`` is ever recorded. Every recorded point carries the
 mesh it was computed on (``AdaptiveRun.meshes``).
 """
@@ -34,6 +43,7 @@ from typing import Any
 import numpy as np
 
 from bifid.continuation._blas import one_blas_thread
+from bifid.continuation._density import convert_values, equidistributing_mesh
 from bifid.continuation._options import ContinuationOptions
 from bifid.continuation._palc import (
     Continuation,
@@ -83,25 +93,6 @@ HOLD_STEPS = 8
 LIMIT_RETRIES = 4
 
 
-def resample_orbit(values: np.ndarray, n_mesh: int) -> np.ndarray:
-    """Trigonometric interpolation of periodic mesh values ``(M, n)`` onto ``n_mesh`` points.
-
-    Exact for the interpolant when refining; drops the harmonics above ``n_mesh/2`` when
-    coarsening (the Nyquist harmonic is split evenly, so real data stay real).
-    """
-    v = np.asarray(values, dtype=float)
-    M = v.shape[0]
-    if n_mesh == M:
-        return v.copy()
-    c = np.fft.rfft(v, axis=0)
-    if M % 2 == 0 and n_mesh > M:
-        c[M // 2] *= 0.5  # the Nyquist harmonic of the coarse mesh is a cosine: split it
-    if n_mesh < M:
-        c = c[: n_mesh // 2 + 1].copy()
-        c[-1] = 2.0 * c[-1].real  # the new Nyquist harmonic: its cosine, sampled
-    return np.fft.irfft(c, n=n_mesh, axis=0) * (n_mesh / M)
-
-
 def mesh_tail(y: np.ndarray, M: int, n: int) -> float:
     """Spectral tail of the mesh values of ``y`` (0 for a constant orbit)."""
     V = np.asarray(y[: M * n], dtype=float).reshape(M, n)
@@ -109,8 +100,9 @@ def mesh_tail(y: np.ndarray, M: int, n: int) -> float:
 
 
 def remesh(y: np.ndarray, M: int, M_new: int, n: int) -> np.ndarray:
-    """``y = [mesh values, extras]`` with the mesh values interpolated onto ``M_new``."""
-    V = resample_orbit(np.asarray(y[: M * n]).reshape(M, n), M_new)
+    """``y = [mesh values, extras]`` with the mesh values interpolated onto ``M_new`` (at
+    the same physical times when either mesh is rescaled: ``_density.convert_values``)."""
+    V = convert_values(np.asarray(y[: M * n]).reshape(M, n), M, M_new)
     return np.concatenate([V.ravel(), np.asarray(y[M * n :], dtype=float)])
 
 
@@ -128,6 +120,10 @@ class MeshPolicy:
         Largest spectral tail of a recorded orbit.
     adapt : bool
         False keeps ``n_mesh`` throughout (an unresolved orbit then ends the branch).
+    rescale : bool
+        Meshes in a rescaled time (``_density``): every new mesh gets the density that
+        equidistributes the orbit's arclength, and an unresolved step first tries the same
+        number of points redistributed (only with ``adapt``).
 
     Attributes
     ----------
@@ -139,6 +135,7 @@ class MeshPolicy:
     max_mesh: int
     tol: float = 1e-9
     adapt: bool = True
+    rescale: bool = False
     ladder: tuple[int, ...] = field(init=False, repr=False, compare=False, default=())
 
     def __post_init__(self) -> None:
@@ -156,12 +153,25 @@ class MeshPolicy:
 
     @classmethod
     def of(
-        cls, n_mesh: int, max_mesh: int | None, tol: float, adapt: bool, n_states: int
+        cls,
+        n_mesh: int,
+        max_mesh: int | None,
+        tol: float,
+        adapt: bool,
+        n_states: int,
+        rescale: bool = False,
     ) -> MeshPolicy:
         """The policy of a driver's arguments (``max_mesh`` default:
         :func:`default_max_mesh`; never below ``n_mesh``)."""
         limit = max_mesh if max_mesh is not None else default_max_mesh(n_mesh, n_states)
-        return cls(n_mesh=n_mesh, max_mesh=max(limit, n_mesh), tol=tol, adapt=adapt)
+        return cls(
+            n_mesh=n_mesh, max_mesh=max(limit, n_mesh), tol=tol, adapt=adapt, rescale=rescale
+        )
+
+    def new_mesh(self, V: np.ndarray, M: int, M_new: int) -> int:
+        """The mesh of ``M_new`` points for the orbit ``V`` on ``M``: uniform, or with the
+        density that equidistributes its arclength (``rescale``)."""
+        return equidistributing_mesh(V, M, M_new) if self.rescale else M_new
 
     def finer(self, M: int) -> int | None:
         """The next mesh of the ladder above ``M`` (None at the limit)."""
@@ -286,6 +296,11 @@ class _Runner:
         self.M, self.driver = M_new, driver
         return replace(new, ds=state.ds, n_points=state.n_points)
 
+    def _new_mesh(self, state: ContinuationState, M_new: int) -> int:
+        n = self.n
+        V = np.asarray(state.y[: self.M * n]).reshape(self.M, n)
+        return self.policy.new_mesh(V, self.M, M_new)
+
     def run(self, y0: np.ndarray, t0: np.ndarray, M0: int) -> AdaptiveRun:
         n, pol = self.n, self.policy
         self.M = M0
@@ -301,7 +316,7 @@ class _Runner:
         )
         if self.progress is not None:
             self.progress(1, float(state.y[pi]))
-        hold, retries = 0, 0
+        hold, retries, redistributed = 0, 0, False
         while state.running:
             step = self.driver.step(state)
             if step.point is None:
@@ -310,8 +325,14 @@ class _Runner:
             y_new = np.asarray(step.point.y)
             tail = mesh_tail(y_new, self.M, n)
             if tail > pol.tol:
+                switched = None
+                if pol.rescale and pol.adapt and not redistributed:
+                    # the same number of points, redistributed along the last orbit
+                    redistributed = True
+                    switched = self._switch(state, self._new_mesh(state, int(self.M)))
                 finer = pol.finer(self.M)
-                switched = self._switch(state, finer) if finer else None
+                if switched is None and finer:
+                    switched = self._switch(state, self._new_mesh(state, finer))
                 if switched is not None:
                     state, hold = switched, HOLD_STEPS
                     continue
@@ -326,7 +347,7 @@ class _Runner:
                     f"{pol.tol:.0e}); the mesh limit is {pol.max_mesh} (raise max_mesh)"
                 )
                 return out
-            retries = 0
+            retries, redistributed = 0, False
             i = len(out.ys) - 1
             for kind, y_e, prec in step.events:
                 out.events.append((i, kind, y_e, prec, self.M))
@@ -349,11 +370,15 @@ class _Runner:
             coarser = pol.coarser(self.M)
             if state.running and coarser and hold == 0:
                 V = np.asarray(y_new[: self.M * n]).reshape(self.M, n)
-                half = resample_orbit(V, coarser)
+                mesh = pol.new_mesh(V, self.M, coarser)
+                half = convert_values(V, self.M, mesh)
+                switched = None
                 if np.ptp(half) == 0 or spectral_tail(half) < pol.tol * COARSEN_MARGIN:
-                    switched = self._switch(state, coarser)
+                    switched = self._switch(state, mesh)
                     if switched is not None:
                         state = switched
+                if switched is None and pol.rescale:
+                    hold = HOLD_STEPS  # a rescaled mesh is worked out: not at every step
         out.status, out.message = state.status, state.message
         return out
 

@@ -8,6 +8,9 @@ from typing import Any
 
 from bifid.errors import BifidInputError
 
+#: default of :attr:`ContinuationOptions.rescale`
+RESCALE_DEFAULT = False
+
 
 @dataclass(frozen=True)
 class ContinuationOptions:
@@ -37,6 +40,11 @@ class ContinuationOptions:
         Step multiplier after an easy corrector (<= 3 iterations).
     detect_folds, detect_bifurcations : bool
         Locate folds (limit points) and flag branch points / bifurcations.
+    rescale : bool
+        Periodic orbits: collocate in a rescaled time whose mesh density follows the
+        orbit's arclength (``bifid.continuation._density``), so that orbits with fast
+        phases (relaxation oscillations) are resolved on far fewer points; False keeps
+        the uniform mesh in time.
     """
 
     ds: float = 0.01
@@ -52,6 +60,7 @@ class ContinuationOptions:
     growth: float = 1.5
     detect_folds: bool = True
     detect_bifurcations: bool = True
+    rescale: bool = RESCALE_DEFAULT
 
     def __post_init__(self) -> None:
         if not (0 < self.ds_min <= self.ds <= self.ds_max):

@@ -41,6 +41,7 @@ from typing import Any
 import numpy as np
 
 from bifid.continuation._branch import SpecialPoint
+from bifid.continuation._density import integration_samples, time_mean, uniform_samples
 from bifid.continuation._floquet import Floquet, autonomous_rhs, collocation_floquet, floquet
 from bifid.continuation._folds import verify_fold
 from bifid.continuation._mesh import (
@@ -140,7 +141,7 @@ class BracketContext:
         rhs = autonomous_rhs(self.system.field) if self.autonomous else self.forced_rhs
         fl = floquet(
             rhs,
-            np.asarray(y[: M * n]).reshape(1, M, n),
+            integration_samples(np.asarray(y[: M * n]).reshape(M, n), M)[None],
             np.array([period]),
             ps[None, :],
             autonomous=self.autonomous,
@@ -170,7 +171,7 @@ def _point_data(ctx: BracketContext, y: np.ndarray, M: int) -> dict[str, Any]:
     return {
         "period": ctx.params_of(y, M)[1],
         "amplitude": np.max(np.abs(V), axis=0),
-        "amplitude_centred": np.max(np.abs(V - V.mean(axis=0)), axis=0),
+        "amplitude_centred": np.max(np.abs(V - time_mean(V, M)), axis=0),
         "amplitude_states": list(ctx.system.states),
         "n_mesh": int(M),
     }
@@ -184,7 +185,10 @@ def _special(ctx, kind, i, y, M, prec) -> SpecialPoint:
         param=ctx.lam(y, M),
         index=i,
         bracket=(ctx.lam(run.ys[i], run.meshes[i]), ctx.lam(run.ys[i + 1], run.meshes[i + 1])),
-        solution=np.asarray(y[: M * n + 1]),
+        # samples at the uniform times T k / M
+        solution=np.concatenate(
+            [uniform_samples(np.asarray(y[: M * n]).reshape(M, n), M).ravel(), y[M * n : M * n + 1]]
+        ),
         precision=prec,
         data=_point_data(ctx, y, M),
     )

@@ -26,6 +26,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from bifid.continuation._branch import Branch, SpecialPoint
+from bifid.continuation._density import (
+    density_of,
+    export_samples,
+    integration_samples,
+    time_mean,
+)
 from bifid.continuation._floquet import Floquet, autonomous_rhs, collocation_floquet, floquet
 from bifid.continuation._mesh import (
     AdaptiveRun,
@@ -74,8 +80,10 @@ COLLAPSE_FROM = 0.2
 COLLAPSE_TO = 0.1
 
 
-def _centred(V: np.ndarray) -> float:
-    return float(np.max(np.abs(V - V.mean(axis=0))))
+def _centred(V: np.ndarray, M: int | None = None) -> float:
+    """``max |x - mean_t x|`` of mesh values (on the mesh ``M``, which may be rescaled)."""
+    mean = V.mean(axis=0) if M is None else time_mean(V, M)
+    return float(np.max(np.abs(V - mean)))
 
 
 @dataclass
@@ -93,7 +101,7 @@ class OrbitEnds:
 
     def stop(self, y, M, ys, meshes) -> str | None:
         n = self.n_states
-        a = _centred(np.asarray(y[: M * n]).reshape(M, n))
+        a = _centred(np.asarray(y[: M * n]).reshape(M, n), M)
         T = float(y[M * n])
         self.amplitudes.append(a)
         self.periods.append(T)
@@ -114,8 +122,8 @@ class OrbitEnds:
         collocation equations, not along the branch; it is rejected (factor 0.25); any other
         step is accepted with no limit on the next one (``inf``)."""
         n = self.n_states
-        a_prev = _centred(np.asarray(y[: M * n]).reshape(M, n))
-        a_new = _centred(np.asarray(y_new[: M * n]).reshape(M, n))
+        a_prev = _centred(np.asarray(y[: M * n]).reshape(M, n), M)
+        a_new = _centred(np.asarray(y_new[: M * n]).reshape(M, n), M)
         peak = max([*self.amplitudes, self.first_amplitude])
         if a_prev > COLLAPSE_FROM * peak and a_new < COLLAPSE_TO * a_prev:
             return 0.25
@@ -235,14 +243,21 @@ def orbit_branch(
             )
             meta["max_period"] = float(periods_[k])
     ys, M = on_common_mesh(run.ys, run.meshes, n)
-    meshes = np.asarray(run.meshes)
+    meshes = np.asarray(run.meshes, dtype=int)
     orbits = ys[:, : M * n].reshape(-1, M, n)
     periods = ys[:, M * n]
     params = ys[:, M * n + 1]
     fl = _branch_floquet(system, p, idx, run, n, stage_of, stability)
+    # peaks are those of the mesh values' interpolant in any time; the mean is in time
     amps = np.array([max_abs(o) for o in orbits])
     # per state, about the orbit's mean (as a rig measures it)
-    centred_states = np.array([max_abs(o - o.mean(axis=0)) for o in orbits])
+    centred_states = np.array([max_abs(o - time_mean(o, M)) for o in orbits])
+    if density_of(M) is not None:
+        # the branch's orbits leave as samples at uniform times, resolved
+        orbits = export_samples(orbits, M, policy.tol)
+        ys = np.column_stack([orbits.reshape(len(orbits), -1), ys[:, M * n :]])
+        M = orbits.shape[1]
+        meta["rescaled"] = True
     centred = centred_states.max(axis=1) if len(orbits) else np.zeros(0)
     zero = centred <= 1e-12 * max(1.0, float(np.max(np.abs(orbits))))
     findings = Findings()
@@ -319,6 +334,8 @@ def _branch_floquet(
     ok = np.zeros(N, bool)
     V = [np.asarray(y[: m * n]).reshape(m, n) for y, m in zip(run.ys, run.meshes, strict=True)]
     rows = [i for i in range(N) if _centred(V[i]) > 0]
+    # the variational equation is integrated in time from samples at uniform times
+    samples = [integration_samples(V[i], run.meshes[i]) for i in range(N)]
     if rows:
         if stability == "collocation":
             fl = collocation_floquet(
@@ -329,7 +346,11 @@ def _branch_floquet(
             ps[:, idx] = [run.ys[i][run.meshes[i] * n + 1] for i in rows]
             periods = np.array([run.ys[i][run.meshes[i] * n] for i in rows])
             fl = floquet(
-                autonomous_rhs(system.field), [V[i] for i in rows], periods, ps, autonomous=True
+                autonomous_rhs(system.field),
+                [samples[i] for i in rows],
+                periods,
+                ps,
+                autonomous=True,
             )
         mults[rows], logm[rows], trivial[rows], ok[rows] = (
             fl.multipliers,
@@ -343,12 +364,12 @@ def _branch_floquet(
 def _zero_amplitude_fold(run: AdaptiveRun, n: int) -> int | None:
     """Index of a "fold" event whose located orbit has (nearly) vanished."""
     peak = max(
-        _centred(np.asarray(y[: m * n]).reshape(m, n))
+        _centred(np.asarray(y[: m * n]).reshape(m, n), m)
         for y, m in zip(run.ys, run.meshes, strict=True)
     )
     for i, kind, y_e, _, M in run.events:
         if kind == "fold" and y_e is not None:
-            a = _centred(np.asarray(y_e[: M * n]).reshape(M, n))
+            a = _centred(np.asarray(y_e[: M * n]).reshape(M, n), M)
             if a < 1e-3 * peak:
                 return i
     return None
@@ -372,7 +393,7 @@ def _hopf_end(system, param, p, run: AdaptiveRun, n: int, meta: dict) -> tuple[s
         h = locate_hopf(
             system,
             param,
-            V.mean(axis=0),
+            time_mean(V, M),
             lam,
             jnp.asarray(p),
             omega_guess=2 * np.pi / float(y[M * n]),
