@@ -211,12 +211,13 @@ def branch_amplitude_gradients(
     (n_points, n_states, n_p)."""
     n = system.n_states
     sols = np.asarray(branch.solutions, dtype=float)
-    meshes = np.asarray(branch.data.get("n_mesh", np.full(len(branch), branch.meta["n_mesh"])))
+    # every orbit of a branch is stored on its common (largest) mesh, whatever mesh it
+    # was computed on; the interpolant there is exact
+    M = int(branch.meta["n_mesh"])
+    problem = orbit_problem(system.field, M, n)
     out = np.empty((len(branch), n, np.asarray(p).size))
     for i in range(len(branch)):
-        M = int(meshes[i])
         V = sols[i, : M * n].reshape(M, n)
-        problem = orbit_problem(system.field, M, n)
         q = np.asarray(p, dtype=float).copy()
         q[idx] = branch.params[i]
         args = _orbit_args(q, idx, V)
