@@ -378,12 +378,21 @@ def main() -> None:
         default=None,
         help="run one protocol only (prints, does not write BENCHMARKS.md)",
     )
+    ap.add_argument("--system", choices=tuple(CASES), default=None, help="one system only")
+    ap.add_argument("--noise", type=float, default=None, help="one noise fraction only")
+    ap.add_argument("--seed", type=int, nargs="+", default=None, help="these seeds only")
     args = ap.parse_args()
     fractions = (0.01,) if args.quick else (0.0, 0.003, 0.01)
     seeds = (1,) if args.quick else (1, 2)
+    if args.noise is not None:
+        fractions = (args.noise,)
+    if args.seed is not None:
+        seeds = tuple(args.seed)
+    names = (args.system,) if args.system else tuple(CASES)
+    partial = args.quick or args.only or args.system or args.noise is not None or args.seed
     rows, refs, compile_s = [], {}, {}
     if args.only != "frc":
-        for name in CASES:
+        for name in names:
             refs[name] = reference(name)
             compile_s[name] = warmup(name)
             for frac in fractions:
@@ -393,7 +402,7 @@ def main() -> None:
                     print(table([r]).splitlines()[-1], file=sys.stderr, flush=True)
     frc_rows, frc_refs = [], {}
     if args.only != "scurve":
-        for name in FRC_CASES:
+        for name in names:
             frc_refs[name] = frc_reference(name)
             for frac in fractions:
                 for seed in seeds if frac > 0 else (0,):
@@ -454,8 +463,10 @@ Columns: *max amp. err, same (γ, Ω)* -- against the uncontrolled response Newt
 at the point's own (γ, Ω), points where `|dlnA/dlnγ| <= 2` at that Ω; *steep (n)* -- the
 points next to the folds (`|dlnA/dlnγ| > 2`; Newton at fixed (γ, Ω) fails at the fold
 itself, such points are not counted); *max dist. to curve* -- distance to the dense
-continuation FRC, Ω and A normalised by their ranges in the window; *folds* -- relative
-error in Ω and the largest error as a fraction of the width of the bistable range;
+continuation FRC, Ω and A normalised by their ranges in the window; *folds* -- the
+turning points of Ω along the measured curve that reverse it by more than three times its
+local scatter (`folds_of`), relative error in Ω and the largest error as a fraction of
+the width of the bistable range;
 *control floor* -- 3σ noise floor of `|u1|` relative to γ. Limits: amplitudes
 within 1 %, folds within 2 %.
 
@@ -464,7 +475,7 @@ within 1 %, folds within 2 %.
 Reproduce: `.venv/bin/python benchmarks/bench_cbc_forced.py` (wall times: shared 2-core
 machine; `--only frc|scurve` runs one part and prints only).
 """
-    if args.quick or args.only:
+    if partial:
         print(md)
     else:
         write_section("cbc_forced", md)

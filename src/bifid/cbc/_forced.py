@@ -24,8 +24,11 @@ errors ``<= tol · A_1^* +`` theirs, *and* those floors (3σ) small: the control
 fundamental known to ``precision · γ``, the response to ``precision · A_1^*``. While a
 floor is too high the record is extended (the rig keeps running, no re-settling) up to
 ``max_measure_periods``; a point that still cannot be verified is a failure, never
-recorded. Where the residual is within a few noise floors the next records are twice as
-long (Newton steps on noise would only wander).
+recorded. The next evaluations of the point are measured on records as long as the
+longest it needed; on an FRC, where a Newton step leaves the residual within a few noise
+floors, twice as long (Newton steps on noise would only wander). An S-curve's points are
+solved for the force at a fixed ``A_1^*``: their residual is as well determined by
+records as long, and doubling them only cost rig time.
 """
 
 from __future__ import annotations
@@ -98,6 +101,11 @@ class ForcedProblem(MeasuredProblem):
         # never depends on the noise of γ
         self.weights = self._metric if kind == "frc" else self._metric * np.array([1.0, 1e-4, 1e-4])
         self.pstar = np.array(pstar, dtype=float)
+        # S-curves: the corrector solves for the force at a fixed A_1^* (eq. 3.6) with a
+        # Jacobian carried from point to point (see transport) that Broyden's updates
+        # keep; one finite-difference refresh per point at most (on the long records of
+        # noisy points a refresh costs more than the steps it saves)
+        self.refresh_limit = 2 if kind == "frc" else 1
         self.periods = float(opts.measure_periods)
         self.jacobian: np.ndarray | None = None  # the corrector's estimate (force floors)
         q = self.q
@@ -154,12 +162,15 @@ class ForcedProblem(MeasuredProblem):
             pstar = harm.step(pstar, r.p, r.floor)
         assert ev is not None
         self.pstar = pstar
-        # the residual is as small as this record could tell: measure the next one as long,
-        # twice as long where it is within a few noise floors
+        # the residual is as small as this record could tell: measure the next one as long
         self.periods = max(self.periods, ev.info[1].periods)
-        if ev.residual <= 4.0 * float(np.max(self.tolerance(ev))):
-            self.periods = min(2.0 * self.periods, o.max_measure_periods)
         return ev
+
+    def stepped(self, ev: Evaluation) -> None:
+        """After a Newton step on an FRC: where the residual is within a few noise floors
+        the next records are twice as long (Newton steps on noise would only wander)."""
+        if self.kind == "frc" and ev.residual <= 4.0 * float(np.max(self.tolerance(ev))):
+            self.periods = min(2.0 * self.periods, self.opts.max_measure_periods)
 
     def _evaluation(self, y: np.ndarray, pstar: np.ndarray, r: Projection) -> Evaluation:
         q = self.q
@@ -170,6 +181,30 @@ class ForcedProblem(MeasuredProblem):
     def _harmonics_error(self, ev: Evaluation) -> float:
         pstar, r = ev.info
         return float(np.max(np.abs((pstar - r.p)[self._others]))) if self._others else 0.0
+
+    def _force_map(self, y: np.ndarray) -> np.ndarray:
+        """``∂f/∂(ψ, γ)`` of the force's (cos, sin) parts ``f = γ (cos ψ, sin ψ)``."""
+        gamma, psi = self.forcing(y)[0], self.fundamental(y)[2]
+        c, s = math.cos(psi), math.sin(psi)
+        return np.array([[-gamma * s, c], [gamma * c, s]])
+
+    def transport(self, jacobian: np.ndarray, y_from: np.ndarray, y_to: np.ndarray) -> np.ndarray:
+        """S-curve: ``∂G/∂(ψ, γ) = (∂G/∂f)(∂f/∂(ψ, γ))`` with ``∂G/∂f`` kept (it changes
+        slowly along the curve) and ``∂f/∂(ψ, γ)`` moved to the new force: the force's
+        phase turns by up to π along an S-curve, and a Jacobian carried over in
+        ``(ψ, γ)`` would be rotated by the step's turn of ``ψ`` (and scaled by that of
+        ``γ``)."""
+        if self.kind != "scurve" or not (y_from[2] > 0 and y_to[2] > 0):
+            return jacobian
+        J = np.array(jacobian, dtype=float)
+        with np.errstate(all="ignore"):
+            try:
+                moved = J[:, 1:3] @ np.linalg.solve(self._force_map(y_from), self._force_map(y_to))
+            except np.linalg.LinAlgError:
+                return jacobian
+        if np.all(np.isfinite(moved)):
+            J[:, 1:3] = moved
+        return J
 
     # ------------------------------------------------------------------ acceptance
     def tolerance(self, ev: Evaluation) -> np.ndarray:
@@ -225,7 +260,10 @@ class ForcedProblem(MeasuredProblem):
         if r.periods >= 0.99 * self.opts.max_measure_periods:
             return None
         om = self.forcing(ev.y)[1]
-        return self._evaluation(ev.y, ev.info[0], extend(self.rig, self.opts, om, r))
+        longer = self._evaluation(ev.y, ev.info[0], extend(self.rig, self.opts, om, r))
+        # a record this long was needed to verify a point here: the next ones as long
+        self.periods = max(self.periods, longer.info[1].periods)
+        return longer
 
     def imprecision(self, ev: Evaluation) -> str:
         r = ev.info[1]

@@ -44,6 +44,7 @@ __all__ = [
     "make_forced_point",
     "measure",
     "project",
+    "turning_points",
 ]
 
 
@@ -394,9 +395,51 @@ def folds_of(points: list[ForcedPoint], key: str = "forcing") -> list[dict[str, 
     return [{key: f, "amplitude": amp} for f, amp, _ in fold_points(v, a)]
 
 
+def turning_points(v: np.ndarray) -> list[int]:
+    """Indices of the robust local extrema of a measured sequence ``v`` (the folds of a
+    curve measured point by point): the sign changes of ``Δv`` that survive the removal
+    of noise.
+
+    Near a fold the curve is tangent to the direction of ``v``, the steps in ``v`` between
+    points are small and a noisy point can reverse ``Δv`` twice (a spurious pair of
+    extrema). The scatter of ``v`` is estimated locally from third differences (blind to
+    the quadratic shape of a fold: ``σ̂ = median|Δ³v| / (0.6745 √20)``, seven points
+    round the pair); a pair of neighbouring extrema whose excursion is within ``3σ̂`` is
+    removed (the smallest first, until none is), and so is an extremum within ``3σ̂`` of
+    an end of the curve. What remains reverses ``v`` by more than its noise.
+    """
+    v = np.asarray(v, dtype=float)
+    n = v.shape[0]
+    if n < 3:
+        return []
+    d = np.diff(v)
+    ext = [i for i in range(1, n - 1) if d[i - 1] * d[i] < 0]
+    d3 = np.abs(np.diff(v, 3)) if n >= 4 else np.zeros(0)
+
+    def floor(i: int, j: int) -> float:
+        w = d3[max(min(i, j) - 3, 0) : min(max(i, j) + 1, d3.shape[0])]
+        return 3.0 * float(np.median(w)) / (0.6745 * math.sqrt(20.0)) if w.size >= 3 else 0.0
+
+    while ext:
+        nodes = [0, *ext, n - 1]
+        worst, pick = 1.0, None
+        for k in range(len(nodes) - 1):
+            i, j = nodes[k], nodes[k + 1]
+            if k == 0 and len(nodes) == 2:
+                continue
+            lim = floor(i, j)
+            if lim > 0 and abs(v[j] - v[i]) < worst * lim:
+                worst, pick = abs(v[j] - v[i]) / lim, (i, j)
+        if pick is None:
+            break
+        ext = [e for e in ext if e not in pick]
+    return ext
+
+
 def fold_points(v: np.ndarray, a: np.ndarray) -> list[tuple[float, float, int]]:
-    """Folds of a measured curve ``(v_i, a_i)`` in the order measured: local extrema of
-    the parameter ``v``, as ``(v, amplitude, i)`` with ``i`` the point before the fold.
+    """Folds of a measured curve ``(v_i, a_i)`` in the order measured: the robust local
+    extrema of the parameter ``v`` (:func:`turning_points`), as ``(v, amplitude, i)``
+    with ``i`` the point before the fold.
 
     Where the amplitude is monotone along the curve (an S-curve), ``v`` is a smooth
     function of the amplitude with a regular extremum at each fold: a cubic spline
@@ -414,13 +457,12 @@ def fold_points(v: np.ndarray, a: np.ndarray) -> list[tuple[float, float, int]]:
     if np.all(np.diff(a) > 0) or np.all(np.diff(a) < 0):
         order = np.argsort(a)
         spl = CubicSpline(a[order], v[order])
-        for i in range(1, len(v) - 1):
-            if (v[i] - v[i - 1]) * (v[i + 1] - v[i]) < 0:
-                grid = np.linspace(min(a[i - 1], a[i + 1]), max(a[i - 1], a[i + 1]), 4001)
-                vals = spl(grid)
-                j = int(np.argmax(vals) if v[i] > v[i - 1] else np.argmin(vals))
-                before = i - 1 if (grid[j] - a[i]) * (a[i] - a[i - 1]) < 0 else i
-                out.append((float(vals[j]), float(grid[j]), before))
+        for i in turning_points(v):
+            grid = np.linspace(min(a[i - 1], a[i + 1]), max(a[i - 1], a[i + 1]), 4001)
+            vals = spl(grid)
+            j = int(np.argmax(vals) if v[i] > v[i - 1] else np.argmin(vals))
+            before = i - 1 if (grid[j] - a[i]) * (a[i] - a[i - 1]) < 0 else i
+            out.append((float(vals[j]), float(grid[j]), before))
         return out
     dv = np.diff(v) / max(np.ptp(v), 1e-300)
     da = np.diff(a) / max(np.ptp(a), 1e-300)
@@ -428,11 +470,10 @@ def fold_points(v: np.ndarray, a: np.ndarray) -> list[tuple[float, float, int]]:
     idx = np.flatnonzero(np.concatenate([[True], np.diff(s) > 0]))
     s, v, a = s[idx], v[idx], a[idx]
     sv, sa = CubicSpline(s, v), CubicSpline(s, a)
-    for i in range(1, len(v) - 1):
-        if (v[i] - v[i - 1]) * (v[i + 1] - v[i]) < 0:
-            grid = np.linspace(s[i - 1], s[i + 1], 4001)
-            vals = sv(grid)
-            j = int(np.argmax(vals) if v[i] > v[i - 1] else np.argmin(vals))
-            before = int(idx[i - 1] if grid[j] < s[i] else idx[i])
-            out.append((float(vals[j]), float(sa(grid[j])), before))
+    for i in turning_points(v):
+        grid = np.linspace(s[i - 1], s[i + 1], 4001)
+        vals = sv(grid)
+        j = int(np.argmax(vals) if v[i] > v[i - 1] else np.argmin(vals))
+        before = int(idx[i - 1] if grid[j] < s[i] else idx[i])
+        out.append((float(vals[j]), float(sa(grid[j])), before))
     return out

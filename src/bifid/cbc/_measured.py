@@ -127,6 +127,9 @@ class MeasuredProblem(abc.ABC):
 
     param_index: int = -1
     weights: np.ndarray
+    #: finite-difference refreshes of the Jacobian per correction after a step that made
+    #: the residual worse, or a stall (a singular estimate is always refreshed, twice)
+    refresh_limit: int = 2
     jacobian: np.ndarray | None = None  # the corrector's current estimate of G_y
 
     @property
@@ -154,6 +157,16 @@ class MeasuredProblem(abc.ABC):
     def rescale(self, y: np.ndarray) -> None:  # noqa: B027 - optional hook
         """Called with each accepted point: a problem whose scales follow the branch
         updates :attr:`weights` in place here."""
+
+    def transport(self, jacobian: np.ndarray, y_from: np.ndarray, y_to: np.ndarray) -> np.ndarray:
+        """The Jacobian estimate made at ``y_from`` carried to ``y_to`` (the start of the
+        next correction); unchanged by default. A problem whose unknowns are polar
+        coordinates of another (e.g. a force's amplitude and phase) rotates it here."""
+        return jacobian
+
+    def stepped(self, ev: Evaluation) -> None:  # noqa: B027 - optional hook
+        """Called with the evaluation after each Newton step (not after the evaluations
+        of a finite-difference Jacobian)."""
 
     def settled(self, ev: Evaluation) -> bool:
         """Conditions of convergence besides ``G`` (e.g. the target's other harmonics)."""
@@ -344,10 +357,13 @@ class BroydenCorrector(AbstractCorrector):
         """Quasi-Newton iterations with a trust region (module docstring): a step that
         raises the residual above its noise is rejected (its change still updates the
         Jacobian) and the Jacobian refreshed by finite differences at the last point, or,
-        after two refreshes, the trust radius halved; a residual that has not halved in
-        four iterations also refreshes the Jacobian."""
+        after ``problem.refresh_limit`` refreshes, the trust radius halved; a residual
+        that has not halved in four iterations also refreshes the Jacobian."""
         w = self.problem.metric
         self.problem.begin()
+        if self.jacobian is not None and self.y_accepted is not None:
+            if self.y_accepted.shape == y_pred.shape:
+                self.jacobian = self.problem.transport(self.jacobian, self.y_accepted, y_pred)
         ev = self.evaluate(y_pred)
         if self.jacobian is None:
             ev = self.bootstrap(ev)
@@ -357,7 +373,7 @@ class BroydenCorrector(AbstractCorrector):
         for it in range(self.max_iter + 1):
             step = self._newton_step(ev, row, c)
             stalled = since >= 4 and ev.residual > 0.5 * res_ref
-            if step is None or (stalled and refreshes < 2):
+            if step is None or (stalled and refreshes < self.problem.refresh_limit):
                 if refreshes >= 2:
                     reason = "singular Jacobian estimate"
                     break
@@ -379,7 +395,10 @@ class BroydenCorrector(AbstractCorrector):
                     return self._result(
                         ev, False, it, n0, NoiseLimited(self.problem.imprecision(ev))
                     )
-                if self._converged(ev, *(self._newton_step(ev, row, c) or (dy, noise))):
+                # the longer record tells more: its own step (the short record's step is
+                # a step on noise), and converged only if it still says so
+                dy, noise = self._newton_step(ev, row, c) or (dy, noise)
+                if self._converged(ev, dy, noise):
                     return self._result(ev, True, it, n0, "")
             if it == self.max_iter:
                 break
@@ -396,6 +415,7 @@ class BroydenCorrector(AbstractCorrector):
                         break
                     dy = dy * ((target - ev.y[i]) / dy[i]) if dy[i] != 0 else dy
             ev_new = self.evaluate(ev.y + dy)
+            self.problem.stepped(ev_new)
             since += 1
             self._broyden(ev, ev_new)
             worse = ev_new.residual > max(
@@ -403,7 +423,7 @@ class BroydenCorrector(AbstractCorrector):
             )
             if not worse:
                 ev = ev_new
-            elif refreshes < 2:
+            elif refreshes < self.problem.refresh_limit:
                 # the step made it worse: the Jacobian is wrong; refresh it where we were
                 refreshes, since, res_ref = refreshes + 1, 0, ev.residual
                 ev = self.bootstrap(ev)
