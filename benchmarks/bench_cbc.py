@@ -16,7 +16,9 @@ included; CPU time of the process beside the wall time):
 2. **continuation** -- ``--continuation N --range 17.5 LOW`` from the LCOs at 17.5 m/s round
    the cycle fold, for the default model and three variants of the pitch stiffness;
 3. **variants** -- ``--set ka2=… --set ka3=…`` (0.5-1.5 × the defaults, one with period
-   doubling of the large LCO inside the range) × 6 speeds in each bistable range.
+   doubling of the large LCO inside the range) × 6 speeds in each bistable range, up to
+   where an LCO reaches 80 % of the rig's safety envelope; every LCO of the model at
+   each speed counted once (``--variant 1.25,0.75`` runs one variant, printed only).
 
 Every measured LCO is compared with the model's orbit Newton-corrected at the measured
 speed (Fourier collocation from the nearest orbit of the continued branch,
@@ -26,7 +28,6 @@ speed (Fourier collocation from the nearest orbit of the continued branch,
 from __future__ import annotations
 
 import argparse
-import collections
 import itertools
 import json
 import os
@@ -107,6 +108,15 @@ def curve_distance(points: list[dict], curve: dict | None) -> float:
 def _err(p: dict) -> float:
     e = p.get("relative_error")
     return max(abs(v) for v in e.values()) if e else float("nan")
+
+
+def _max_err(points: list[dict]) -> str:
+    """The largest error of the points in %, and how many have no truth (the model's
+    orbit could not be corrected at their speed, e.g. at a cycle fold)."""
+    errs = [_err(p) for p in points]
+    ok = [e for e in errs if np.isfinite(e)]
+    text = f"{100 * max(ok):.2f} %" if ok else "–"
+    return text + (f" ({len(errs) - len(ok)} without truth)" if len(ok) < len(errs) else "")
 
 
 def table(points: list[dict]) -> list[str]:
@@ -321,8 +331,17 @@ def continuation(tmp: Path) -> list[str]:
 
 
 # ----------------------------------------------------------------------------- variants
-def bistable(f2: float, f3: float) -> tuple[float, float, list]:
-    """(cycle fold, Hopf speed, secondary points) of a variant by continuation."""
+#: the speeds of a variant stop where one of its LCOs reaches this fraction of a limit of
+#: the rig's safety envelope (the controlled transients on the way need the rest)
+ENVELOPE_FRACTION = 0.8
+#: a measured point is an LCO of the model at its speed when their heave amplitudes agree
+MATCH_TOL = 0.05
+
+
+def bistable(f2: float, f3: float) -> dict:
+    """A variant's continued cycles: ``lo`` (cycle fold), ``hopf``, ``secondary`` points,
+    ``hi`` (the Hopf speed, or lower: the speed where an LCO's peak of a state first
+    reaches :data:`ENVELOPE_FRACTION` of the envelope) and ``limit`` (which state)."""
     from bifid.continuation import ContinuationOptions, continue_from_hopf
     from bifid.systems import get_system
 
@@ -344,14 +363,74 @@ def bistable(f2: float, f3: float) -> tuple[float, float, list]:
             ),
         )
     br = brs[0]
-    return (
-        float(np.min(br.params)),
-        float(br.params[0]),
-        [(sp.kind, sp.param) for sp in br.special_points if sp.kind != "cycle_fold"],
-    )
+    lo, hopf = float(np.min(br.params)), float(br.params[0])
+    hi, limit = hopf, None
+    m, n = int(br.meta.get("n_mesh", 48)), s.n_states
+    for i in range(len(br)):
+        orbit = br.solutions[i, : m * n].reshape(m, n)
+        for name, (a, b) in s.envelope.states.items():
+            peak = np.abs(orbit[:, s.state_index(name)]).max()
+            if peak >= ENVELOPE_FRACTION * min(-a, b) and float(br.params[i]) < hi:
+                hi, limit = float(br.params[i]), name
+    return {
+        "lo": lo,
+        "hopf": hopf,
+        "hi": hi,
+        "limit": limit,
+        "secondary": [(sp.kind, sp.param) for sp in br.special_points if sp.kind != "cycle_fold"],
+    }
 
 
-def variants(tmp: Path, keep: Path | None = None) -> list[str]:
+def requested(f2: float, f3: float, value: float, window: tuple[float, float]) -> list[float]:
+    """Heave amplitudes (``max |h - h̄|``) of the variant's LCOs at ``value``: every
+    crossing of its branch, Newton-corrected there -- the LCOs a scan there asks for."""
+    from bifid.cbc._derive import cycles_at
+    from bifid.continuation.truth import centred_amplitudes
+    from bifid.systems import get_system
+
+    s = get_system("flutter")
+    p = s.param_vector({"ka2": KA2 * f2, "ka3": KA3 * f3})
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        cycles = cycles_at(s, p, "U", value, window)
+    return sorted(float(centred_amplitudes(c[1])[s.state_index("h")]) for c in cycles)
+
+
+def _concerns(f: dict, a: float) -> bool:
+    """Whether a failure (its JSON) can be about the LCO of heave amplitude ``a``."""
+    if "bracket" in f:
+        lo, hi = sorted(float(v) for v in f["bracket"])
+        return (1 - MATCH_TOL) * lo <= a <= (1 + MATCH_TOL) * hi
+    if "lco" in f:
+        return abs(a / float(f["lco"]) - 1) <= MATCH_TOL
+    if "a_star" in f:
+        return a >= (1 - MATCH_TOL) * float(f["a_star"])
+    return True
+
+
+def tally(points: list[dict], failures: list[dict], wanted: dict[float, list[float]]):
+    """Per requested LCO (``wanted``: speed -> heave amplitudes of the model's LCOs):
+    measured or not. Points of the same LCO count once, points of no requested LCO not
+    at all. Returns ``(measured, missing)``, ``missing`` as ``(speed, amplitude, reason)``
+    with the last failure at that speed that can be about it."""
+    measured, missing = 0, []
+    for v, amps in wanted.items():
+        here = [p["amplitude"]["h"] for p in points if abs(p["param"] - v) <= 1e-3]
+        hit = set()
+        for h in here:
+            k = min(range(len(amps)), key=lambda i: abs(h / amps[i] - 1), default=None)
+            if k is not None and abs(h / amps[k] - 1) <= MATCH_TOL:
+                hit.add(k)
+        measured += len(hit)
+        fails = [f for f in failures if abs(float(f.get("param", np.inf)) - v) <= 1e-3]
+        for k, a in enumerate(amps):
+            if k not in hit:
+                why = [f for f in fails if _concerns(f, a)] or fails
+                missing.append((v, a, str(why[-1]["reason"]) if why else "no failure recorded"))
+    return measured, missing
+
+
+def variants(tmp: Path, keep: Path | None = None, only: tuple | None = None) -> list[str]:
     md = [
         "### Flutter variants: other pitch stiffness, 6 speeds in each bistable range",
         "",
@@ -359,17 +438,27 @@ def variants(tmp: Path, keep: Path | None = None) -> list[str]:
         "with every setting derived for the variant (the amplitude grid and noise "
         "reference from its continued cycles) except the gains and rig of `flutter`; "
         "the speeds span the bistable range (cycle fold to Hopf point, 5 % in from each "
-        "end).",
+        "end) where every LCO of the variant lies inside "
+        f"{100 * ENVELOPE_FRACTION:.0f} % of the rig's safety envelope (heave 50 mm, "
+        "pitch 0.35 rad, rates 2 m/s and 10 rad/s): a larger LCO, or the controlled "
+        "transients that reach it, would trip a real rig's safety gate (the campaign "
+        "refuses an LCO of the model outside the envelope, with that reason). Requested: "
+        "every LCO of the variant at each speed (its continued branch's crossings); a "
+        "point counts for the LCO whose heave amplitude it matches within 5 %, each LCO once.",
         "",
-        "| ka2, ka3 (× default) | bistable range [m/s] | secondary | measured | failures | "
-        "max error | max error, unstable | wall |",
-        "|---|---|---|---|---|---|---|---|",
+        "| ka2, ka3 (× default) | bistable range [m/s] | envelope | speeds [m/s] | "
+        "secondary | measured | failures | max error | max error, unstable | wall |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
     total, measured = 0, 0
     for f2, f3 in VARIANTS:
-        lo, hopf, secondary = bistable(f2, f3)
-        w = hopf - lo
-        values = np.linspace(lo + 0.05 * w, hopf - 0.05 * w, 6)
+        if only is not None and (f2, f3) != only:
+            continue
+        b = bistable(f2, f3)
+        lo, hi = b["lo"], b["hi"]
+        w = hi - lo
+        values = [float(f"{v:.4f}") for v in np.linspace(lo + 0.05 * w, hi - 0.05 * w, 6)]
+        wanted = {v: requested(f2, f3, v, (lo, b["hopf"])) for v in values}
         out = (keep or tmp) / f"var_{f2}_{f3}.nc"
         cmd = [
             "flutter",
@@ -385,34 +474,35 @@ def variants(tmp: Path, keep: Path | None = None) -> list[str]:
             *_sets(f2, f3),
         ]
         d, wall, _cpu, _rc = cli(cmd)
-        compare(d["points"], {"ka2": KA2 * f2, "ka3": KA3 * f3}, lo, hopf)
+        compare(d["points"], {"ka2": KA2 * f2, "ka3": KA3 * f3}, lo, b["hopf"])
         if keep is not None:
             (keep / f"var_{f2}_{f3}.json").write_text(json.dumps(d, indent=1, default=str))
-        total += 12
-        # two LCOs are requested per speed (the stable and the unstable one): a third
-        # point at a speed (a retry's copy, another cycle) does not count twice
-        per_speed = collections.Counter(round(float(p["param"]), 4) for p in d["points"])
-        measured += sum(min(2, n) for n in per_speed.values())
+        got, missing = tally(d["points"], d.get("failures", []), wanted)
+        n_req = sum(map(len, wanted.values()))
+        total += n_req
+        measured += got
         unstable = [
             p for p in d["points"] if p.get("truth_stable") is False or p["stable"] is False
         ]
-        sec = ", ".join(f"{k} {u:.2f}" for k, u in secondary) or "–"
+        sec = ", ".join(f"{k} {u:.2f}" for k, u in b["secondary"]) or "–"
+        env = "–" if b["limit"] is None else f"{b['limit']} above {hi:.2f}"
         md.append(
-            f"| {f2:g}, {f3:g} | {lo:.2f} – {hopf:.2f} | {sec} | "
-            f"{len(d['points'])} / 12 | {len(d.get('failures', []))} | "
-            f"{100 * max(map(_err, d['points']), default=np.nan):.2f} % | "
-            f"{100 * max(map(_err, unstable), default=np.nan):.2f} % | {wall:.0f} s |"
+            f"| {f2:g}, {f3:g} | {lo:.2f} – {b['hopf']:.2f} | {env} | "
+            f"{values[0]:.2f} – {values[-1]:.2f} | {sec} | {got} / {n_req} | "
+            f"{len(d.get('failures', []))} | {_max_err(d['points'])} | "
+            f"{_max_err(unstable)} | {wall:.0f} s |"
         )
-        for f in d.get("failures", []):
+        for v, a, why in missing:
             md.append(
-                f"|  | failure at {f.get('param', '?')} | {str(f['reason'])[:90]} | | | | | |"
+                f"|  | not measured: U = {v:g}, h = {1e3 * a:.1f} mm | {why[:160]} | | | | | | | |"
             )
-        print(md[-1], flush=True)
+        print("\n".join(md[-1 - len(missing) :]), flush=True)
     md += [
         "",
         f"**{measured} of {total} requested LCOs measured "
-        f"({100 * measured / max(total, 1):.0f} %)**; the others are failures with their "
-        "reason (listed).",
+        f"({100 * measured / max(total, 1):.0f} %)**; the others are listed with the last "
+        "failure recorded at their speed that can be about them. Failures: the campaign's "
+        "count (one per LCO it did not measure).",
         "",
     ]
     return md
@@ -443,13 +533,18 @@ def main() -> None:
         "--print-only", action="store_true", help="print the tables, leave BENCHMARKS.md"
     )
     ap.add_argument("--keep", help="variants: keep each campaign's file and JSON in this folder")
+    ap.add_argument(
+        "--variant",
+        help="variants: only this one, 'F2,F3' (factors of ka2, ka3); printed only",
+    )
     args = ap.parse_args()
+    only = None if args.variant is None else tuple(float(v) for v in args.variant.split(","))
     load = "{:.1f} / {:.1f} / {:.1f}".format(*os.getloadavg())
     keep = None if args.keep is None else Path(args.keep).resolve()
     parts = {
         "diagram": diagram,
         "continuation": continuation,
-        "variants": lambda tmp: variants(tmp, keep),
+        "variants": lambda tmp: variants(tmp, keep, only),
     }
     md = [
         "## cbc — PP-CBC campaigns on the flutter model (virtual rig, 5 kHz)",
@@ -469,7 +564,7 @@ def main() -> None:
                     note = "_The later parts of this benchmark did not finish in this run._"
                     write_section("cbc", "\n".join([*md, "", note]))
     print("\n".join(md))
-    if args.print_only:
+    if args.print_only or only is not None:
         return
     if args.only is None:
         write_section("cbc", "\n".join(md))

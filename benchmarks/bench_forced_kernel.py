@@ -14,10 +14,10 @@ Ground truth is the continuation of the true systems (``bifid.continuation.frc``
 1. ``shaw_pierre`` as thesis §6.3.1: training points on the FRCs at F = 0.01 and 0.007
    (16 each, spread by arclength over 0.96 ≤ Ω ≤ 1.03, stable and unstable); predicted FRCs
    at F = 0.003, 0.006, 0.009, 0.012 against continuation: peak amplitude, fold
-   frequencies, band coverage; backbone over the trained amplitude range; time series at
-   untrained points. Speed of fit and of one FRC, against scikit-learn's
-   GaussianProcessRegressor fitted to the same a/b samples in the same run (its FRC solved
-   by the same fixed-phase Newton sweep in numpy/scipy).
+   frequencies, coverage of the 95 % amplitude intervals; backbone over the trained
+   amplitude range; time series at untrained points. Speed of fit and of one FRC, against
+   scikit-learn's GaussianProcessRegressor fitted to the same a/b samples in the same run
+   (its FRC solved by the same fixed-phase Newton sweep in numpy/scipy).
 2. ``duffing`` (ζ = 0.01, γ = 0.5, hardening): trained at F = 0.005 and 0.01, FRC predicted
    at F = 0.02 (2×); a sparse-data table like §6.3.2: S-curves at 24, 12, 5 frequencies →
    error on three untrained S-curves, on their folds, on the backbone and on the F = 0.02 FRC.
@@ -54,7 +54,7 @@ CACHE = ROOT / "out" / "bench_cache" / "forced_kernel"
 FIGS = ROOT / "docs" / "figures"
 DATA = ROOT.parent / "shared" / "data" / "em_oscillator"
 N_MESH = 32
-N_SAMPLES = 40
+LEVEL = 0.95  # intervals of every prediction with a band
 
 
 # ============================================================================ ground truth
@@ -208,9 +208,26 @@ def true_peak(d: dict) -> tuple[float, float]:
     return float(np.polyval(np.polyfit(p, o, 2), ps)), float(np.polyval(c, ps))
 
 
-def frc_errors(model: ForcedKernelModel, d: dict, forcing: float, window, n_samples: int):
+def predicted(model: ForcedKernelModel, **query):
+    """The one branch of ``model.predict_diagram(level=LEVEL, **query)``: the curve with
+    its calibrated intervals (extrapolation warnings silenced: the tables say where)."""
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)
+        return model.predict_diagram(level=LEVEL, **query).branches[0]
+
+
+def interval_width(br, key: str) -> np.ndarray:
+    """Width of a predicted branch's interval ``key`` (``amplitude``: first column)."""
+    lo, hi = (np.asarray(v, float) for v in br.intervals[key])
+    return (hi - lo)[:, 0] if lo.ndim == 2 else hi - lo
+
+
+def frc_errors(model: ForcedKernelModel, d: dict, forcing: float, window, intervals: bool):
     t0 = time.perf_counter()
-    br = model.frc(forcing, window, n_samples=n_samples)
+    if intervals:
+        br = predicted(model, forcing=forcing, range=window)
+    else:
+        br = model.frc(forcing, window)
     dt = time.perf_counter() - t0
     po, pa = true_peak(d)
     (peak,) = br.special("peak")
@@ -232,12 +249,12 @@ def frc_errors(model: ForcedKernelModel, d: dict, forcing: float, window, n_samp
         "fold_err": fold_err,
         "time_s": dt,
     }
-    if n_samples:
+    if intervals:
         cov = band_coverage(br, d["omega"], d["amplitude"], d["phase"])
         i = int(np.argmax(br.data["observed_amplitude"]))
         row.update(
             coverage=cov["coverage"],
-            band_width_peak=abs(br.data["band_upper"][i, 1] - br.data["band_lower"][i, 1]),
+            band_width_peak=float(interval_width(br, "amplitude")[i]),
             band_failed=br.meta["band"]["failed_fraction"],
         )
     return row, br
@@ -321,7 +338,7 @@ def shaw_pierre(quick: bool) -> tuple[dict, ForcedKernelModel, dict]:
 
     rows, branches = [], {}
     for f in test_f + train_f:
-        row, br = frc_errors(model, tr[f], f, window, N_SAMPLES)
+        row, br = frc_errors(model, tr[f], f, window, True)
         row["trained"] = f in train_f
         rows.append(row)
         branches[f] = br
@@ -333,19 +350,19 @@ def shaw_pierre(quick: bool) -> tuple[dict, ForcedKernelModel, dict]:
     band_times = []
     for _ in range(1 if quick else 3):
         t0 = time.perf_counter()
-        model.frc(0.009, window, n_samples=N_SAMPLES)
+        predicted(model, forcing=0.009, range=window)
         band_times.append(time.perf_counter() - t0)
 
     # backbone over the trained amplitude range
     r_hi = model.rho_range_[1]
     tb = truth_backbone("shaw_pierre", (0.05, r_hi))
-    mb = model.backbone((0.05, r_hi), n_samples=N_SAMPLES)
+    mb = predicted(model, kind="backbone", range=(0.05, r_hi))
     om_m = np.interp(tb["amplitude"], mb.params, mb.data["omega"])
     bb_err = float(np.max(np.abs(om_m / tb["omega"] - 1)))
     shift = float(np.ptp(tb["omega"]))
     bb_err_shift = float(np.max(np.abs(om_m - tb["omega"])) / shift)
-    mb_ext = model.backbone((0.05, 1.5 * r_hi), n_samples=N_SAMPLES)
-    w = np.diff(mb_ext.data["band_omega"], axis=1)[:, 0]
+    mb_ext = predicted(model, kind="backbone", range=(0.05, 1.5 * r_hi))
+    w = interval_width(mb_ext, "omega")
     inside = mb_ext.params <= r_hi
     widen = float(np.median(w[~inside]) / np.median(w[inside]))
 
@@ -479,27 +496,27 @@ def shaw_pierre_scurves(n_per_curve: int = 20, noise: float = 0.01) -> tuple[dic
     rows = []
     branches = {}
     for f in (0.003, 0.006, 0.009, 0.012):
-        row, br = frc_errors(model, truth_frc("shaw_pierre", f, window), f, window, N_SAMPLES)
+        row, br = frc_errors(model, truth_frc("shaw_pierre", f, window), f, window, True)
         rows.append(row)
         branches[f] = br
     t0 = time.perf_counter()
     model.frc(0.009, window)
     timing["frc"] = time.perf_counter() - t0
     t0 = time.perf_counter()
-    model.frc(0.009, window, n_samples=N_SAMPLES)
+    predicted(model, forcing=0.009, range=window)
     timing["frc_band"] = time.perf_counter() - t0
     r_hi = model.rho_range_[1]
     tb = truth_backbone("shaw_pierre", (0.05, 3.29578))
     for key in ("backbone_band_first", "backbone_band"):
         t0 = time.perf_counter()
-        mb = model.backbone((0.05, r_hi), n_samples=N_SAMPLES)
+        mb = predicted(model, kind="backbone", range=(0.05, r_hi))
         timing[key] = time.perf_counter() - t0
     ok = tb["amplitude"] <= r_hi
     om_m = np.interp(tb["amplitude"][ok], mb.params, mb.data["omega"])
     bb_err = float(np.max(np.abs(om_m / tb["omega"][ok] - 1)))
     for key in ("scurve_band_first", "scurve_band"):
         t0 = time.perf_counter()
-        model.scurve(1.0, (0.0, 0.012), n_samples=N_SAMPLES)
+        predicted(model, omega=1.0, range=(0.0, 0.012))
         timing[key] = time.perf_counter() - t0
     with tempfile.TemporaryDirectory() as tmp:
         t0 = time.perf_counter()
@@ -536,14 +553,14 @@ def duffing(quick: bool) -> tuple[dict, dict]:
     branches = {}
     for fs, at in variants:
         m = ForcedKernelModel(forcing_scale=fs, a_target=at).fit(ds)
-        row, br = frc_errors(m, tr[test_f], test_f, window, N_SAMPLES)
+        row, br = frc_errors(m, tr[test_f], test_f, window, True)
         row["kappa"] = m.forcing_scale_
         out["frc"][f"κ={fs}, a: {at}"] = row
         branches[(fs, at)] = br
     model = ForcedKernelModel(forcing_scale="fit").fit(ds)
     r_hi = model.rho_range_[1]
     tb = truth_backbone("duffing", (0.02, 2 * r_hi))
-    mb = model.backbone((0.02, 2 * r_hi), n_samples=N_SAMPLES)
+    mb = predicted(model, kind="backbone", range=(0.02, 2 * r_hi))
     om_m = np.interp(tb["amplitude"], mb.params, mb.data["omega"])
     inside = tb["amplitude"] <= r_hi
     out["backbone_err_trained"] = float(np.max(np.abs(om_m[inside] / tb["omega"][inside] - 1)))
@@ -573,7 +590,7 @@ def duffing(quick: bool) -> tuple[dict, dict]:
         "recs": recs,
         "tb": tb,
         "mb": mb,
-        "trained_br": model.frc(train_f[1], window, n_samples=N_SAMPLES),
+        "trained_br": predicted(model, forcing=train_f[1], range=window),
     }
     if quick:
         return out, figs
@@ -776,7 +793,7 @@ def figures(sp_figs: dict, du_figs: dict, em_figs: dict) -> list[str]:
     ax = axes[1]
     for k, f in enumerate(sorted(brs)):
         br = brs[f]
-        w = np.abs(br.data["band_upper"][:, 1] - br.data["band_lower"][:, 1])
+        w = interval_width(br, "amplitude")
         ax.semilogy(
             br.data["observed_amplitude"],
             np.maximum(w, 1e-12),
@@ -787,8 +804,8 @@ def figures(sp_figs: dict, du_figs: dict, em_figs: dict) -> list[str]:
     ax.axvline(sp_figs["r_hi"], color="k", lw=0.8, ls=":")
     ax.set(
         xlabel="amplitude ρ",
-        ylabel="95 % band width in amplitude",
-        title="uncertainty band (posterior samples)",
+        ylabel="95 % interval width in amplitude",
+        title="95 % intervals (posterior samples and jackknife)",
     )
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7)
@@ -843,12 +860,12 @@ def figures(sp_figs: dict, du_figs: dict, em_figs: dict) -> list[str]:
             (du_figs["trained_br"], "C0", "F = 0.01 (trained)"),
             (br, "C3", "F = 0.02 (2×)"),
         ):
-            w = np.abs(b_.data["band_upper"][:, 1] - b_.data["band_lower"][:, 1])
+            w = interval_width(b_, "amplitude")
             ax.semilogy(b_.data["phase"], np.maximum(w, 1e-12), color=col, lw=1.2, label=lab)
         ax.set(
             xlabel="phase lag behind the force [rad]",
-            ylabel="95 % band width in amplitude",
-            title="uncertainty band along the FRC",
+            ylabel="95 % interval width in amplitude",
+            title="95 % intervals along the FRC",
         )
         ax.grid(alpha=0.3, which="both")
         ax.legend(fontsize=8)
@@ -879,7 +896,7 @@ def figures(sp_figs: dict, du_figs: dict, em_figs: dict) -> list[str]:
                     label=f"measured {om / 2 / np.pi:.1f} Hz"
                     + (" (training)" if name == train else " (validation)"),
                 )
-                br = m.scurve(om, (0, 0.6), n_samples=N_SAMPLES)
+                br = m.scurve(om, (0, 0.6))
                 ax.plot(
                     br.params,
                     br.data["observed_amplitude"],
@@ -921,12 +938,12 @@ def figures(sp_figs: dict, du_figs: dict, em_figs: dict) -> list[str]:
             (m, "C0", "model, one S-curve + ω₀"),
             (em_figs["both"], "C3", "model, both S-curves, κ fitted"),
         ):
-            bb = mdl.backbone((0.05, mdl.rho_range_[1] * 1.6), n_samples=N_SAMPLES)
+            bb = predicted(mdl, kind="backbone", range=(0.05, mdl.rho_range_[1] * 1.6))
             ax.plot(bb.data["omega"] / 2 / np.pi, bb.params, "-", color=col, lw=1.4, label=lab2)
             ax.fill_betweenx(
                 bb.params,
-                bb.data["band_omega"][:, 0] / 2 / np.pi,
-                bb.data["band_omega"][:, 1] / 2 / np.pi,
+                np.asarray(bb.intervals["omega"][0]) / 2 / np.pi,
+                np.asarray(bb.intervals["omega"][1]) / 2 / np.pi,
                 color=col,
                 alpha=0.25,
             )
@@ -935,7 +952,7 @@ def figures(sp_figs: dict, du_figs: dict, em_figs: dict) -> list[str]:
         ax.set(
             xlabel="frequency [Hz]",
             ylabel="max |x|",
-            title="backbones: measured (CBC) and predicted (eq. 6.21), 95 % band",
+            title="backbones: measured (CBC) and predicted (eq. 6.21), 95 % intervals",
         )
         ax.grid(alpha=0.3)
         ax.legend(fontsize=7)
@@ -967,7 +984,7 @@ def report(
     )
     L.append(
         "| F | trained | peak (true) | peak error | peak Ω error | folds true/model | "
-        "max fold-Ω error | band coverage | band width at peak | FRC time |"
+        "max fold-Ω error | 95 % interval coverage | interval width at peak | FRC time |"
     )
     L.append("|---|---|---|---|---|---|---|---|---|---|")
     for r in sp["rows"]:
@@ -985,7 +1002,7 @@ def report(
         f"{pct(max(r['fold_err'] for r in sp['rows'] if not r['trained']), 5)}; backbone "
         f"within 1 % over the trained amplitude range — max {pct(sp['backbone_err'], 4)} "
         f"(= {pct(sp['backbone_err_shift'], 2)} of the backbone's frequency shift); "
-        f"backbone band {sp['backbone_widening']:.1f}× wider beyond the trained amplitude "
+        f"backbone interval {sp['backbone_widening']:.1f}× wider beyond the trained amplitude "
         "than inside.\n"
     )
     L.append(
@@ -1009,7 +1026,7 @@ def report(
         f"| one FRC, F = 0.009 | {sp['frc_s']:.2f} s (palc, ~110 points, folds located) | "
         f"{sk['frc_s']:.2f} s (300 fixed-phase fsolve) | {sp['frc_s'] / sk['frc_s']:.2f} |"
     )
-    L.append(f"| FRC + 95 % band, {N_SAMPLES} samples | {sp['band_frc_s']:.2f} s | – | – |")
+    L.append(f"| FRC + {LEVEL:.0%} intervals | {sp['band_frc_s']:.2f} s | – | – |")
     L.append("")
     L.append(
         f"scikit-learn's FRC peak error at F = 0.009 (same a/b samples, zero-mean RBF, "
@@ -1031,7 +1048,7 @@ def report(
         )
         L.append(
             "| F | peak (true) | peak error | peak Ω error | folds true/model | "
-            "max fold-Ω error | band coverage |"
+            "max fold-Ω error | 95 % interval coverage |"
         )
         L.append("|---|---|---|---|---|---|---|")
         for r in sps["rows"]:
@@ -1044,10 +1061,10 @@ def report(
         L.append(
             f"Backbone over the trained amplitudes: max error {pct(sps['backbone_err'], 4)}. "
             f"Wall times (warm): fit {t['fit']:.2f} s (first call, with JIT compile, "
-            f"{t['fit_first']:.1f} s); FRC {t['frc']:.2f} s; FRC + band "
-            f"({N_SAMPLES} samples) {t['frc_band']:.2f} s; backbone + band "
+            f"{t['fit_first']:.1f} s); FRC {t['frc']:.2f} s; FRC + intervals "
+            f"{t['frc_band']:.2f} s; backbone + intervals "
             f"{t['backbone_band']:.2f} s (first call {t['backbone_band_first']:.1f} s); "
-            f"S-curve + band {t['scurve_band']:.2f} s (first call "
+            f"S-curve + intervals {t['scurve_band']:.2f} s (first call "
             f"{t['scurve_band_first']:.1f} s); save {t['save']:.2f} s; load "
             f"{t['load']:.2f} s.\n"
         )
@@ -1056,7 +1073,10 @@ def report(
             "### duffing (ζ = 0.01, γ = 0.5): trained at F = 0.005, 0.01 (16 points each), "
             "FRC predicted at F = 0.02\n"
         )
-        L.append("| variant | κ | peak error | peak Ω error | max fold-Ω error | band coverage |")
+        L.append(
+            "| variant | κ | peak error | peak Ω error | max fold-Ω error "
+            "| 95 % interval coverage |"
+        )
         L.append("|---|---|---|---|---|---|")
         for k, r in du["frc"].items():
             L.append(

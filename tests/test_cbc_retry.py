@@ -12,6 +12,7 @@ from __future__ import annotations
 import json
 import math
 import warnings
+from dataclasses import replace
 
 import jax
 import jax.numpy as jnp
@@ -19,7 +20,7 @@ import numpy as np
 import pytest
 from scipy.integrate import solve_ivp
 
-from bifid.cbc import orbit_polar_target, ppcbc_campaign, retry_controller
+from bifid.cbc import Measurement, VirtualRig, orbit_polar_target, ppcbc_campaign, retry_controller
 from bifid.continuation import ContinuationOptions, continue_from_hopf
 from bifid.continuation.truth import centred_amplitudes, correct_orbit
 from bifid.systems import get_system
@@ -121,3 +122,52 @@ def test_campaign_measures_the_period_doubled_lco():
     # each record says which controller measured it; the large LCO's is not the default
     ctrl = [json.loads(str(c)) for c in r.dataset["extra_controller"].values]
     assert len(ctrl) == 2 and ctrl[0] != ctrl[1]
+
+
+class _StrokeLimitedRig(VirtualRig):
+    """A virtual ``hopf`` rig with a stroke limit its description does not give (as a
+    rig whose gate the model knows nothing of): ``|u1| > 0.7`` brings it to rest."""
+
+    def run(self, duration: float) -> Measurement:
+        m = super().run(duration)
+        if np.max(np.abs(m.outputs[:, 0])) > 0.7:
+            self._trip()
+            return replace(m, status="tripped", reason="stroke limit |u1| <= 0.7 reached")
+        return m
+
+
+def test_one_failure_per_lco_of_the_model_with_the_last_reason():
+    """Check an LCO that the scan, each retry and the hold from the model's orbit all fail
+    to measure is one failure, with the reasons of the last scan and of the hold, not one
+    per attempt (``hopf``, q5 = 1, μ = -0.1: r = 0.331 measured; r = 0.945 beyond the
+    rig's stroke of 0.7)."""
+    mu = -0.1
+    d = math.sqrt(1 + 4 * mu)
+    r_u, r_s = math.sqrt((1 - d) / 2), math.sqrt((1 + d) / 2)
+    rig = _StrokeLimitedRig(get_system("hopf"), {"mu": mu, "q5": 1.0}, sample_rate=100.0)
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        r = ppcbc_campaign(
+            "hopf",
+            param="mu",
+            values=[mu],
+            overrides={"q5": 1.0},
+            amplitudes=np.linspace(0.15, 1.05, 7),
+            rig=rig,
+            options=dict(
+                x1="u1",
+                x2="u2",
+                kp=1.0,
+                kd=0.0,
+                n_harmonics=3,
+                stability=False,
+                settle_periods=5.0,
+                measure_periods=2.0,
+            ),
+        )
+    assert [p.amplitude["u1"] for p in r.points] == [pytest.approx(r_u, rel=5e-3)]
+    assert rig.trips >= 3  # the scan, its retries, the hold
+    assert len(r.failures) == 1
+    f = r.failures[0].to_json()
+    assert f["model"] == pytest.approx(r_s, rel=0.02)
+    assert "after a retry" in f["reason"] and "held from the model's orbit" in f["reason"]

@@ -21,7 +21,7 @@ retried before a failure is recorded: (1) back to the last recorded point (the r
 re-settled there, the oscillation restarted from rest when the rig tripped, a fresh
 finite-difference Jacobian) with twice the smallest step; (2) the same with the
 controller gains doubled (the controller lost lock). A scan with failures is repeated with
-other controllers (``_campaign_tasks._other_controllers``: one designed on the system's
+other controllers (``_retry.other_controllers``: one designed on the system's
 model, then the bootstrap gains in ``(x1, ẋ1)`` where the protocol's plane is another,
 else doubled gains); a failure another scan of the value answered is dropped. What still
 fails is recorded with its reason and ends the branch; the campaign is then incomplete.

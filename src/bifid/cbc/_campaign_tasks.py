@@ -8,31 +8,34 @@ Jacobian, problem, gains) instead of being started again.
 
 from __future__ import annotations
 
-import json
 import math
-import warnings
 from dataclasses import replace
 from typing import Any
 
 import numpy as np
 
 from bifid.cbc._campaign import Campaign, _Branch
-from bifid.cbc._campaign_result import ANSWER_TOL, amplitudes_of, retry_grid, unanswered
-from bifid.cbc._derive import cycles_at, linearisation, retry_controller
+from bifid.cbc._campaign_result import retry_grid, unanswered
 from bifid.cbc._forced import ForcedProblem, open_loop
 from bifid.cbc._forced_measure import ForcedCBCOptions
 from bifid.cbc._measured import BroydenCorrector
 from bifid.cbc._ppcbc import PPCBCOptions, PPCBCProblem, make_point
 from bifid.cbc._ppcbc_family import TargetFamily, bootstrap
-from bifid.cbc._ppcbc_scan import ScanResult, hold_orbit, scan
-from bifid.cbc._stability import orbit_polar_target
+from bifid.cbc._ppcbc_scan import ScanResult, scan
+from bifid.cbc._retry import (
+    all_measured,
+    keeper,
+    model_lcos,
+    model_orbits,
+    other_controllers,
+    raised,
+    refused,
+    with_gains,
+)
 from bifid.continuation import Continuation, ContinuationOptions, ContinuationState
-from bifid.errors import BifidInputError, ConvergenceError
-from bifid.systems import System, get_system
+from bifid.errors import ConvergenceError
 
 __all__ = ["run_tasks"]
-
-GAIN_FACTOR = 2.0  # controller gains are multiplied by this on loss of lock
 
 
 def run_tasks(camp: Campaign) -> None:
@@ -46,84 +49,6 @@ def run_tasks(camp: Campaign) -> None:
 
 
 # ------------------------------------------------------------------------------ helpers
-def _with_gains(opts: Any, gains: list[float] | dict[str, Any] | None) -> Any:
-    """``opts`` with the controller saved in the cursor: ``[kp, kd]`` or option fields."""
-    if gains is None:
-        return opts
-    if isinstance(gains, dict):
-        return replace(
-            opts, **{k: tuple(v) if isinstance(v, list) else v for k, v in gains.items()}
-        )
-    return replace(opts, kp=float(gains[0]), kd=float(gains[1]))
-
-
-def _raised(opts: Any) -> Any:
-    return replace(opts, kp=GAIN_FACTOR * opts.kp, kd=GAIN_FACTOR * opts.kd)
-
-
-def _other_controllers(camp: Campaign, opts: PPCBCOptions, value: float):
-    """The controllers a failed PP-CBC scan at ``value`` is repeated with, in turn, as
-    option fields. With a model of the campaign's system (a virtual rig's, or the system
-    it names), first the one designed on its cycles at ``value``
-    (:func:`~bifid.cbc._derive.retry_controller`, e.g. against the period doubling of a
-    large flutter LCO). Then, where the protocol's plane is not ``(x1, ẋ1)`` and the
-    system has bootstrap gains (they hold its rig in that plane: they start every
-    oscillation), the polar target in ``(x1, ẋ1)`` with those gains; else the gains
-    raised (the controller lost lock)."""
-    derivative = f"{opts.x1}_dot"
-    d = _design(camp, opts, value)
-    if d is not None and (d["x2"], d["kp"], d["kd"]) != (opts.x2, opts.kp, opts.kd):
-        yield _fields(d, opts, *_model(camp))
-    if opts.bootstrap_gains is not None and opts.x2 != derivative:
-        kp, kd = (float(g) for g in opts.bootstrap_gains)
-        centre = [float(opts.centre[0]), 0.0]
-        yield {"x2": derivative, "kp": kp, "kd": kd, "filter_hz": None, "centre": centre}
-    else:
-        yield {"kp": GAIN_FACTOR * opts.kp, "kd": GAIN_FACTOR * opts.kd}
-
-
-def _model(camp: Campaign) -> tuple[System, Any] | None:
-    """The campaign's system and parameter vector: the virtual rig's, else the system
-    the campaign names; None without one."""
-    system = getattr(camp.rig, "system", None)
-    try:
-        if not isinstance(system, System):
-            system = get_system(camp.spec.system)
-        return system, system.param_vector(dict(camp.spec.parameters))
-    except (BifidInputError, OSError, KeyError, ValueError):
-        return None
-
-
-def _design(
-    camp: Campaign, opts: PPCBCOptions, value: float, orbit: int | None = None
-) -> dict[str, Any] | None:
-    """The retry controller designed on the model (:func:`retry_controller`, for all its
-    cycles at ``value`` or the ``orbit``-th; None without a model)."""
-    model = _model(camp)
-    if model is None or model[0].kind != "autonomous":
-        return None
-    system, p = model
-    outputs = tuple(camp.rig.output_names)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        return retry_controller(
-            system, p, camp.spec.param, value, camp.spec.range, opts.x1, opts.x2, outputs, orbit
-        )
-
-
-def _fields(d: dict[str, Any], opts: PPCBCOptions, system: System, p) -> dict[str, Any]:
-    """A designed controller as option fields (the bootstrap's centre in its plane)."""
-    x2 = str(d["x2"])
-    if x2 == opts.x2:
-        centre = [float(c) for c in opts.centre]
-    elif x2.endswith("_dot"):
-        centre = [float(opts.centre[0]), 0.0]
-    else:  # another output: its value at the model's equilibrium
-        x_eq, _ = linearisation(system, p)
-        centre = [float(opts.centre[0]), float(x_eq[system.state_index(x2)])]
-    return {"x1": opts.x1, "x2": x2, "kp": float(d["kp"]), "kd": float(d["kd"]), "centre": centre}
-
-
 def _driver_options(camp: Campaign, newton_max: int, ds_max: float) -> ContinuationOptions:
     spec = camp.spec
     lo, hi = sorted(float(v) for v in spec.range)
@@ -199,29 +124,7 @@ def _start_branch(
 
 # -------------------------------------------------------------------------- PP-CBC scans
 def _ppcbc_options(camp: Campaign) -> PPCBCOptions:
-    return _with_gains(PPCBCOptions(**dict(camp.spec.options)), camp.cursor.get("gains"))
-
-
-def _keeper(camp: Campaign, opts: PPCBCOptions, branch: int, known: list[tuple[float, float]]):
-    """Records a point unless ``known`` holds it already, with the controller it was
-    measured with (in the file from the checkpoint that ends the value on)."""
-    c = opts.controller
-    controller = json.dumps(
-        {"x1": c.x1, "x2": c.x2, "kp": c.kp, "kd": c.kd, "filter_hz": c.filter_hz}
-    )
-
-    def keep(pt) -> None:
-        a = float(pt.amplitude[opts.x1])
-        if any(
-            abs(v - pt.param) <= 1e-9 * max(1.0, abs(v)) and abs(b - a) <= 0.02 * a
-            for v, b in known
-        ):
-            return  # two brackets (or a repeated scan) converged to the same LCO
-        known.append((float(pt.param), a))
-        camp.record(pt, branch)
-        camp.records[-1].extra["controller"] = controller
-
-    return keep
+    return with_gains(PPCBCOptions(**dict(camp.spec.options)), camp.cursor.get("gains"))
 
 
 def _scan_once(
@@ -231,9 +134,11 @@ def _scan_once(
     branch: int,
     known: list[tuple[float, float]],
     amplitudes: tuple[float, ...] | None = None,
+    a_max: float = math.inf,
 ):
-    """One scan at ``value`` (on the campaign's amplitude grid, or ``amplitudes``); points
-    already recorded there (``known``) are not again."""
+    """One scan at ``value`` (on the campaign's amplitude grid, or ``amplitudes``; no
+    target at or above ``a_max``); points already recorded there (``known``) are not
+    again."""
     spec = camp.spec
     camp.seed_rig()
     return scan(
@@ -243,76 +148,65 @@ def _scan_once(
         spec.amplitudes if amplitudes is None else amplitudes,
         opts,
         omega_guess=float(camp.cursor["omega"]),
-        on_point=_keeper(camp, opts, branch, known),
+        on_point=keeper(camp, opts, branch, known),
         on_evaluation=camp.on_evaluation,
+        a_max=a_max,
     )
 
 
-def _model_orbits(
-    camp: Campaign, opts: PPCBCOptions, value: float, branch: int, known, res: ScanResult
-) -> None:
-    """The LCOs the scans left unmeasured, each held from the model's orbit at ``value``
-    (:func:`cycles_at`) with a controller designed on that orbit
-    (:func:`~bifid.cbc._ppcbc_scan.hold_orbit`); the failures they answer are dropped
-    from ``res``, all of them once every orbit of the model there is measured (the LCOs
-    the campaign asks for)."""
-    model = _model(camp)
-    if model is None or model[0].kind != "autonomous":
-        return
-    system, p = model
-    spec = camp.spec
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        orbits = cycles_at(system, p, spec.param, value, spec.range)
-    got = ScanResult()
-    wanted = []
-    for k, (lam, orbit, period) in enumerate(orbits):
-        pv = np.asarray(system.param_vector({**spec.parameters, spec.param: lam}))
-        a = float(orbit_polar_target(orbit, system, opts.x1, opts.x2, 1, p=pv).coefficients[0])
-        wanted.append(a)
-        if any(abs(b - a) <= ANSWER_TOL * a for b in amplitudes_of(res.points, opts.x1)):
-            continue  # measured by a scan
-        d = _design(camp, opts, value, k)
-        if d is None:
-            camp.warnings.append(
-                f"PP-CBC at {spec.param}={value:g}: no controller holds "
-                f"the model's orbit of A* = {a:.4g}"
-            )
-            continue
-        new = _with_gains(opts, _fields(d, opts, system, p))
-        target = orbit_polar_target(orbit, system, new.x1, new.x2, new.n_harmonics, p=pv)
-        camp.seed_rig()
-        om = 2.0 * math.pi / period
-        pt, why = hold_orbit(camp.rig, spec.param, value, target, new, om, camp.on_evaluation)
-        if pt is None:
-            camp.warnings.append(f"PP-CBC at {spec.param}={value:g}, orbit A* = {a:.4g}: {why}")
-            continue
-        _keeper(camp, new, branch, known)(pt)
-        got.points.append(pt)
-    res.points += got.points
-    measured = amplitudes_of(res.points, opts.x1)
-    if wanted and all(  # every LCO of the model at this value is measured: none failed
-        any(abs(b - a) <= ANSWER_TOL * a for b in measured) for a in wanted
-    ):
-        res.failures = []
-    else:
-        res.failures = unanswered(res, got, opts.x1)
+#: a scan stops below this fraction of the ``A*`` of an LCO outside the envelope
+REFUSED_MARGIN = 0.8
+
+
+def _may_leave_envelope(camp: Campaign, opts: PPCBCOptions) -> bool:
+    """Whether the scan's targets reach half the rig's envelope of ``x1`` (then the
+    model's LCOs are checked against the envelope before the scan, else only when it
+    fails: they cost a continuation of the model's cycles)."""
+    env = (camp.spec.rig or {}).get("envelope") or {}
+    lo, hi = env.get("states", {}).get(opts.x1, (-math.inf, math.inf))
+    return max(camp.spec.amplitudes) >= 0.5 * min(-float(lo), float(hi))
+
+
+def _below_refused(
+    grid: tuple[float, ...], lcos: list[dict[str, Any]]
+) -> tuple[tuple[float, ...] | None, float]:
+    """The amplitude grid without the targets at and above :data:`REFUSED_MARGIN` times
+    the smallest LCO of the model outside the envelope (the controlled transients to a
+    target overshoot it), and that bound (the grid as it is and no bound
+    when none is, or an LCO inside lies above it; no grid when fewer than two targets
+    are left)."""
+    out = [c["a_star"] for c in lcos if c["outside"] is not None]
+    if not out or any(c["a_star"] > min(out) for c in lcos if c["outside"] is None):
+        return grid, math.inf
+    a_max = REFUSED_MARGIN * min(out)
+    cut = tuple(a for a in grid if a < a_max)
+    return (cut if len(cut) >= 2 else None), a_max
 
 
 def _scan_value(camp: Campaign, value: float, branch: int):
     """Scan at ``value``; a scan with failures is repeated with other controllers
-    (:func:`_other_controllers`) while failures remain, from where it failed upwards
-    (:func:`retry_grid`); the following values keep a controller that did better. A
-    failure that another scan answered (it measured the LCO there, :func:`unanswered`)
-    is dropped."""
+    (:func:`~bifid.cbc._retry.other_controllers`) while failures remain, from where it
+    failed upwards (:func:`retry_grid`); the following values keep a controller that did
+    better. With a model, its LCOs outside the rig's safety envelope are refused up
+    front (:func:`~bifid.cbc._retry.refused`: the grid stops below them), the LCOs of
+    the model the scans missed (with or without a failure) are held from its orbits, and
+    the failures left are one per LCO of the model unmeasured
+    (:func:`~bifid.cbc._retry.model_orbits`); without one, a failure that another scan
+    answered (it measured the LCO there, :func:`unanswered`) is dropped."""
     opts = _ppcbc_options(camp)
     known: list[tuple[float, float]] = []
-    res = _scan_once(camp, value, opts, branch, known)
+    lcos = model_lcos(camp, opts, value) if _may_leave_envelope(camp, opts) else None
+    grid, a_max = _below_refused(camp.spec.amplitudes, lcos or [])
+    res = (
+        ScanResult() if grid is None else _scan_once(camp, value, opts, branch, known, grid, a_max)
+    )
+    if res.failures and lcos is None:  # (the model's LCOs asked for when needed)
+        lcos = model_lcos(camp, opts, value)
     first = len(res.failures)
-    for other in _other_controllers(camp, opts, value) if res.failures else ():
-        new = _with_gains(opts, other)
-        grid = retry_grid(camp.spec.amplitudes, res.failures)
-        again = _scan_once(camp, value, new, branch, known, grid)
+    retry = bool(res.failures) and not all_measured(res, lcos, opts.x1)
+    for other in other_controllers(camp, opts, value) if retry else ():
+        new = with_gains(opts, other)
+        again = _scan_once(camp, value, new, branch, known, retry_grid(grid, res.failures), a_max)
         retry = f"after a retry with kp = {new.kp:.4g}, kd = {new.kd:.4g} on ({new.x1}, {new.x2})"
         failures = unanswered(res, again, opts.x1) + [
             replace(f, reason=f"{f.reason} ({retry})") for f in unanswered(again, res, new.x1)
@@ -332,13 +226,15 @@ def _scan_value(camp: Campaign, value: float, branch: int):
         res = again
         if not res.failures:
             break
-    if res.failures:
-        _model_orbits(camp, opts, value, branch, known, res)
-    camp.failures += res.failures
+    if res.failures or (lcos and (grid is None or not all_measured(res, lcos, opts.x1))):
+        # (a scan can also pass an LCO by without a failure, e.g. near a cycle fold)
+        model_orbits(camp, opts, value, branch, known, res, lcos or [])
+    out = refused(camp, value, lcos or [])
+    camp.failures += out + res.failures
     camp.warnings += res.warnings
     if res.points:
         camp.cursor["omega"] = float(res.points[-1].frequency)
-    elif not res.failures:
+    elif not res.failures and not out:
         camp.fail(
             {"param": value},
             "no zero of the control error on the amplitude grid "
@@ -488,7 +384,7 @@ def _ppcbc_branch(camp: Campaign, start: dict[str, Any], saved: dict[str, Any] |
 
     def recover(br: _Branch, raise_gains: bool) -> None:
         if raise_gains:
-            new = _raised(br.problem.opts)
+            new = raised(br.problem.opts)
             br.problem.opts = new
             br.problem.family = br.problem.family.with_options(new)
             camp.cursor["gains"] = {**_saved_controller(camp), "kp": new.kp, "kd": new.kd}
@@ -509,7 +405,7 @@ def _ppcbc_branch(camp: Campaign, start: dict[str, Any], saved: dict[str, Any] |
 # -------------------------------------------------------------------------------- forced
 def _forced(camp: Campaign) -> None:
     spec = camp.spec
-    opts = _with_gains(ForcedCBCOptions(**dict(spec.options)), camp.cursor.get("gains"))
+    opts = with_gains(ForcedCBCOptions(**dict(spec.options)), camp.cursor.get("gains"))
     saved = camp.cursor.get("branch")
     lam0 = float(spec.range[0])
     if saved is None and int(camp.cursor["task"]) > 0:
@@ -589,7 +485,7 @@ def _forced(camp: Campaign) -> None:
 
     def recover(br: _Branch, raise_gains: bool) -> None:
         if raise_gains:
-            br.problem.opts = _raised(br.problem.opts)
+            br.problem.opts = raised(br.problem.opts)
             camp.cursor["gains"] = [br.problem.opts.kp, br.problem.opts.kd]
         camp.seed_rig()
         ev = br.corrector.evaluate(br.state.y)

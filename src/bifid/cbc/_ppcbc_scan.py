@@ -228,16 +228,19 @@ def _refine(
     return Evaluation(y, root.vec - root.resp.vector, floor, root.resp), corrector
 
 
-def _next_amplitude(grid: np.ndarray, k: int, last: _Eval | None) -> float | None:
+def _next_amplitude(
+    grid: np.ndarray, k: int, last: _Eval | None, a_max: float = math.inf
+) -> float | None:
     """The ``k``-th target amplitude: the grid's, then up to as many more (at least 8)
     with its last spacing while the last control error is negative (the response larger
-    than the target: an orbit lies above the grid); None at the end."""
+    than the target: an orbit lies above the grid) and below ``a_max``; None at the end."""
     if k < grid.size:
         return float(grid[k])
     j = k - grid.size + 1
     if j > max(8, grid.size) or last is None or last.xi >= 0:
         return None
-    return float(grid[-1]) + j * float(grid[-1] - grid[-2])
+    a = float(grid[-1]) + j * float(grid[-1] - grid[-2])
+    return a if a < a_max else None
 
 
 def scan(
@@ -251,6 +254,7 @@ def scan(
     on_point: Callable[[LCOPoint], None] | None = None,
     on_evaluation: Callable[[int], None] | None = None,
     max_points: int | None = None,
+    a_max: float = math.inf,
 ) -> ScanResult:
     """All LCOs at one parameter value by the amplitude scan (module docstring).
 
@@ -275,6 +279,9 @@ def scan(
         Called with the number of new rig evaluations.
     max_points : int, optional
         Stop as soon as this many LCOs are measured, with the rig left holding the last.
+    a_max : float, optional
+        The grid's extension stops below this target amplitude (e.g. below an LCO
+        outside the rig's safety envelope).
 
     Returns
     -------
@@ -303,7 +310,7 @@ def scan(
     a = float(grid[0])
     k = 0
     try:
-        while (nxt := _next_amplitude(grid, k, prev)) is not None:
+        while (nxt := _next_amplitude(grid, k, prev, a_max)) is not None:
             a, k = nxt, k + 1
             scanner.reframe()
             e = scanner(float(a), sign_only=True)
