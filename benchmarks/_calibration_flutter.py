@@ -30,10 +30,7 @@ from __future__ import annotations
 
 import dataclasses
 import functools
-import json
-import time
 import warnings
-from pathlib import Path
 
 import numpy as np
 
@@ -285,51 +282,7 @@ def hybrid_flutter_replication(ka3_factor: float, noise: float, seed: int, level
     return hybrid_rows(model, truth, tr.predict_range, levels)
 
 
-# ------------------------------------------------------------------------ resume
-class EarlierFailure(RuntimeError):
-    """A replication that failed in an earlier run (its ``repr`` is the recorded one)."""
-
-    def __repr__(self) -> str:
-        reason = str(self.args[0])
-        return reason if "(earlier run)" in reason else f"(earlier run) {reason}"
-
-
-def resumable(path: Path, resume: bool):
-    """``replicate(fn, *args, seed)`` that runs ``fn(*args, seed)`` and times it (``time_s``
-    on every row), or, with ``resume``, reads the seed's rows back from ``path`` (the
-    replications are deterministic in their seed; a failed one fails again). Every new
-    replication is written to ``path`` at once, with the rows read back and not yet rerun,
-    so an interrupted run loses at most the replication under way."""
-    done: dict[int, list[dict]] = {}
-    if resume and path.exists():
-        for r in json.loads(path.read_text()):
-            done.setdefault(r["seed"], []).append(r)
-
-    def replicate(fn, *args) -> list[dict]:
-        seed = args[-1]
-        if seed in done:
-            if "failed" in done[seed][0]:
-                raise EarlierFailure(done[seed][0]["failed"])
-            return [
-                {k: v for k, v in r.items() if k not in ("case", "seed", "noise")}
-                for r in done[seed]
-            ]
-        t0 = time.perf_counter()
-        try:
-            rows = fn(*args)
-        except Exception as exc:
-            done[seed] = [{"seed": seed, "failed": repr(exc)}]
-            raise
-        dt = time.perf_counter() - t0
-        rows = [{**r, "time_s": dt} for r in rows]
-        done[seed] = [{"seed": seed, "noise": args[-2], **r} for r in rows]
-        path.parent.mkdir(parents=True, exist_ok=True)
-        path.write_text(json.dumps([r for rs in done.values() for r in rs]))
-        return rows
-
-    return replicate
-
-
+# ------------------------------------------------------------------------ report
 def flutter_notes(rows: list[dict]) -> list[str]:
     """Markdown lines: per flutter case, the true values and the time per replication."""
     out = []

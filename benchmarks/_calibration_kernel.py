@@ -5,10 +5,8 @@ intervals."""
 
 from __future__ import annotations
 
-import json
 import warnings
 from collections.abc import Sequence
-from pathlib import Path
 
 import numpy as np
 
@@ -167,34 +165,17 @@ KERNEL_TUNE_OFFSETS = (0, 100_000)
 KERNEL_SEED_OFFSET = 200_000
 
 
-def tune_kernel(run_cases, cases: tuple, reps: int, levels) -> None:
-    """Tuning run of the kernel intervals' shape: ``bench_calibration``'s kernel cases
-    (``cases``: averaged-oscillator cases, ODE cases, the ODE cases' fraction of ``reps``)
-    on the seeds offset by each of ``KERNEL_TUNE_OFFSETS``, rows (seeds with the offset)
-    in ``results/calibration_kernel_tuning_rows.json``; prints the maximum-likelihood
-    scaled Student t of the errors over the standard errors (``|q̂ - q| / s``, ``s`` read
-    back from the 95 % half widths) and its coverage per level, against the constants in
-    use."""
+def kernel_tuning_report(rows: list[dict], levels: Sequence[float]) -> None:
+    """Analysis of the tuning runs of the kernel intervals' shape (the kernel cases on the
+    seeds offset by each of ``KERNEL_TUNE_OFFSETS``, ``bench_calibration.py --tune-kernel``):
+    prints the maximum-likelihood scaled Student t of the errors over the standard errors
+    (``|q̂ - q| / s``, ``s`` read back from the 95 % half widths) and its coverage per level,
+    against the constants in use."""
     import scipy.optimize
     import scipy.stats
 
     from bifid.identify.forced_kernel._uncertainty import ERROR_DOF, ERROR_SCALE
 
-    averaged, odes, ode_frac = cases
-    runs = [(name, frac, (noise,)) for name, noise, frac in averaged]
-    runs += [(name, ode_frac, (system, noise)) for name, system, noise in odes]
-    rows = []
-    for offset in KERNEL_TUNE_OFFSETS:
-
-        def replicate(*args, offset=offset) -> list[dict]:
-            replication = kernel_replication if len(args) == 2 else ode_kernel_replication
-            return replication(*args[:-1], args[-1] + offset, levels=levels)
-
-        part = run_cases(replicate, runs, reps, "calibration_kernel_tuning_rows.json")["rows"]
-        rows += [{**r, "seed": r["seed"] + offset} for r in part]
-    (Path(__file__).parent / "results" / "calibration_kernel_tuning_rows.json").write_text(
-        json.dumps(rows)
-    )
     ok = [r for r in rows if "failed" not in r]
     iv = np.array([r["intervals"]["0.95"] for r in ok])
     se = 0.5 * (iv[:, 1] - iv[:, 0]) / (ERROR_SCALE * scipy.stats.t.ppf(0.975, ERROR_DOF))

@@ -45,19 +45,26 @@ speed and amplitude of ``u1``. Flutter cases as for the mechanistic method, lear
 eight cycles as time series of heave and pitch (``_calibration_flutter.py``).
 
 Run: ``cd benchmarks && ../.venv/bin/python bench_calibration.py [--reps N | --quick]
-[--method mechanistic|kernel|hybrid] [--ode-reps M] [--flutter-reps K] [--resume]``
-(``N`` replications of each 1 % case, ``N/2`` of the others; default 40, ``--quick`` 4;
-``--resume``: replications already in ``results/`` are read back, not rerun).
+[--method mechanistic|kernel|hybrid] [--ode-reps M] [--flutter-reps K] [--jobs J]
+[--out DIR] [--resume]`` (``N`` replications of each 1 % case, ``N/2`` of the others;
+default 40, ``--quick`` 4; ``--jobs``: the replications of all the methods run in one pool
+of ``J`` worker processes, the longest first, default the number of cores up to 4, ``1``:
+in this process; ``--resume``: replications already in the rows files are read back, not
+rerun; ``--out``: directory of the rows files and ``calibration.json``, default
+``results/``, with ``--quick`` ``out/calibration_quick/``). The figures and the
+BENCHMARKS.md sections are written only by a full run into ``results/``; other runs put
+them next to their rows. Running the replications: ``_calibration_run.py``.
 """
 
 from __future__ import annotations
 
 import argparse
+import dataclasses
+import functools
 import json
 import math
 import os
 import sys
-import time
 import warnings
 from pathlib import Path
 
@@ -73,15 +80,15 @@ from _calibration_flutter import (
     hybrid_rows,
     mechanistic_flutter_replication,
     mechanistic_rows,
-    resumable,
 )
 from _calibration_kernel import (
     KERNEL_SEED_OFFSET,
     KERNEL_TUNE_OFFSETS,
     kernel_replication,
+    kernel_tuning_report,
     ode_kernel_replication,
-    tune_kernel,
 )
+from _calibration_run import Case, Group, configure, default_jobs, log, run
 from _report import write_section
 
 ROOT = Path(__file__).resolve().parents[1]
@@ -91,10 +98,6 @@ LEVELS = (0.5, 0.8, 0.9, 0.95, 0.99)
 
 MU = np.array([-0.2, -0.12, -0.05, -0.02, -0.22, -0.15, -0.05, 0.05])
 STABLE = np.array([0, 0, 0, 0, 1, 1, 1, 1])
-
-
-def log(msg: str) -> None:
-    print(f"[bench_calibration] {msg}", file=sys.stderr, flush=True)
 
 
 def radius(mu, stable, a2, q5=1.0, mu0=0.0):
@@ -156,11 +159,11 @@ def hybrid_records(a2: float, noise: float, seed: int) -> list[tuple]:
 
 
 def hybrid_replication(a2: float, noise: float, seed: int) -> list[dict]:
-    """One hybrid fit (with its bootstrap) on fresh noise and a fresh training seed; per
-    quantity the estimate, the truth and the intervals at every level."""
+    """One hybrid fit (with its bootstrap) on fresh noise and a fresh training seed (the
+    replication's seed plus ``HYBRID_SEED_OFFSET``); per quantity the estimate, the truth and
+    the intervals at every level."""
     from bifid.identify import HopfHybridModel
 
-    seed += HYBRID_SEED_OFFSET
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         m = HopfHybridModel(seed=seed, **HYBRID_FIT).fit(
@@ -173,11 +176,6 @@ def hybrid_replication(a2: float, noise: float, seed: int) -> list[dict]:
         "fold_amplitude": math.sqrt(a2 / 2),
     }
     return hybrid_rows(m, truth, (-0.35, 0.05), LEVELS)
-
-
-def hybrid_flutter(ka3_factor: float, noise: float, seed: int) -> list[dict]:
-    """One hybrid fit on the flutter model (``_calibration_flutter``), seeds offset as above."""
-    return hybrid_flutter_replication(ka3_factor, noise, seed + HYBRID_SEED_OFFSET, LEVELS)
 
 
 KERNEL_CASES = (
@@ -202,98 +200,35 @@ MECHANISTIC_CASES = (
 )
 
 
-HYBRID_CASES = MECHANISTIC_CASES
+def method_cases(method: str, reps: int, sub_reps: int, offset: int | None = None) -> list:
+    """The cases of ``method`` (``sub_reps``: replications of each flutter or ODE case)
+    with their seed offset (the method's own unless given) and the CPU seconds a
+    replication takes (measured on a 2-core machine; the pool runs the costliest first)."""
+    frac = sub_reps / reps
+    if method == "mechanistic":
+        fn = mechanistic_replication
+        cases = [Case(n, f, fn, (a2, e), 6.0) for n, a2, e, f in MECHANISTIC_CASES]
+        fn = mechanistic_flutter_replication
+        return cases + [Case(n, frac, fn, (k, e), 20.0) for n, k, e in FLUTTER_CASES]
+    if method == "hybrid":
+        off = HYBRID_SEED_OFFSET if offset is None else offset
+        fn = hybrid_replication  # on the mechanistic method's cases
+        cases = [Case(n, f, fn, (a2, e), 5.0, off) for n, a2, e, f in MECHANISTIC_CASES]
+        fn = functools.partial(hybrid_flutter_replication, levels=LEVELS)
+        return cases + [Case(n, frac, fn, (k, e), 12.0, off) for n, k, e in FLUTTER_CASES]
+    off = KERNEL_SEED_OFFSET if offset is None else offset
+    fn = functools.partial(kernel_replication, levels=LEVELS)
+    cases = [Case(n, f, fn, (e,), 8.0, off) for n, e, f in KERNEL_CASES]
+    fn = functools.partial(ode_kernel_replication, levels=LEVELS)
+    cost = {"duffing": 12.0, "shaw_pierre": 9.0}
+    return cases + [Case(n, frac, fn, (s, e), cost[s], off) for n, s, e in KERNEL_ODE_CASES]
 
 
-def run_hybrid(reps: int, resume: bool = False, flutter_reps: int = 10) -> dict:
-    """The ``hopf`` cases and ``flutter_reps`` replications of each flutter case; with
-    ``resume`` the seeds already in the rows file are read back, only new ones run."""
-    cases = [
-        (name, frac, (hybrid_replication, a2, noise)) for name, a2, noise, frac in HYBRID_CASES
-    ]
-    cases += [(n, flutter_reps / reps, (hybrid_flutter, f, e)) for n, f, e in FLUTTER_CASES]
-    return resumed_run("hybrid", cases, reps, "calibration_hybrid_rows.json", resume)
-
-
-def resumed_run(method: str, cases: list, reps: int, rows_file: str, resume: bool) -> dict:
-    """``run_cases`` through :func:`_calibration_flutter.resumable` (case arguments begin
-    with the replication function); a resumed run's wall time adds the previous run's."""
-    run = run_cases(resumable(RESULTS / rows_file, resume), cases, reps, rows_file)
-    if resume and (RESULTS / "calibration.json").exists():
-        previous = json.loads((RESULTS / "calibration.json").read_text()).get(method, {})
-        run["time_s"] += previous.get("time_s", 0.0)
-    return run
-
-
-def run_mechanistic(reps: int, resume: bool = False, flutter_reps: int = 10) -> dict:
-    """As :func:`run_hybrid`, for the mechanistic model."""
-    cases = [
-        (name, frac, (mechanistic_replication, a2, noise))
-        for name, a2, noise, frac in MECHANISTIC_CASES
-    ]
-    cases += [
-        (n, flutter_reps / reps, (mechanistic_flutter_replication, f, e))
-        for n, f, e in FLUTTER_CASES
-    ]
-    return resumed_run("mechanistic", cases, reps, "calibration_rows.json", resume)
-
-
-class EarlierFailure(RuntimeError):
-    """A failure read back from the rows file (its ``repr`` is the recorded one)."""
-
-    def __repr__(self) -> str:
-        return self.args[0]
-
-
-def run_kernel(reps: int, resume: bool = False, ode_reps: int = 10) -> dict:
-    """Every kernel case's replications (``ode_reps`` of each simulated-ODE case); with
-    ``resume`` the seeds already in the rows file are read back (the replications are
-    deterministic in their seed) and only new ones run."""
-    cases = [(name, frac, (noise,)) for name, noise, frac in KERNEL_CASES]
-    cases += [(name, ode_reps / reps, (sys_, noise)) for name, sys_, noise in KERNEL_ODE_CASES]
-    path = RESULTS / "calibration_kernel_rows.json"
-    done: dict[int, list[dict]] = {}
-    if resume and path.exists():
-        for r in json.loads(path.read_text()):
-            done.setdefault(r["seed"], []).append(r)
-
-    def replicate(*args) -> list[dict]:
-        seed = args[-1]
-        if seed not in done:
-            replication = kernel_replication if len(args) == 2 else ode_kernel_replication
-            return replication(*args[:-1], seed + KERNEL_SEED_OFFSET, levels=LEVELS)
-        if "failed" in done[seed][0]:
-            raise EarlierFailure(done[seed][0]["failed"])
-        return [
-            {k: v for k, v in r.items() if k not in ("case", "seed", "noise")} for r in done[seed]
-        ]
-
-    run = run_cases(replicate, cases, reps, path.name)
-    if resume and (RESULTS / "calibration.json").exists():  # wall time of every run
-        previous = json.loads((RESULTS / "calibration.json").read_text()).get("kernel", {})
-        run["time_s"] += previous.get("time_s", 0.0)
-    return run
-
-
-def run_cases(replicate, cases: list, reps: int, rows_file: str) -> dict:
-    """``replicate(*args, seed)`` over every case's seeds; a failed fit is a row too."""
-    rows = []
-    t0 = time.perf_counter()
-    for c, (name, frac, case_args) in enumerate(cases):
-        n = max(2, round(reps * frac))
-        for r in range(n):
-            seed = 1000 * c + r
-            try:
-                out = replicate(*case_args, seed)
-            except Exception as exc:  # a failed fit is counted, not hidden
-                rows.append({"case": name, "seed": seed, "failed": repr(exc)})
-                log(f"{name} seed {seed}: failed ({exc!r})")
-                continue
-            rows += [{"case": name, "seed": seed, "noise": case_args[-1], **q} for q in out]
-        log(f"{name}: {n} replications, {time.perf_counter() - t0:.0f} s so far")
-        RESULTS.mkdir(parents=True, exist_ok=True)
-        (RESULTS / rows_file).write_text(json.dumps(rows))
-    return {"rows": rows, "time_s": time.perf_counter() - t0}
+ROWS_FILES = {
+    "mechanistic": "calibration_rows.json",
+    "kernel": "calibration_kernel_rows.json",
+    "hybrid": "calibration_hybrid_rows.json",
+}
 
 
 # ----------------------------------------------------------------------- analysis
@@ -368,13 +303,30 @@ def reliability_figure(method: str, table: dict, path: Path) -> None:
     fig.savefig(path, dpi=110)
 
 
+def timing(run: dict) -> str:
+    """The method's summed time per replication and that of the whole run (if over)."""
+    text = (
+        f"{run['n_replications']} replications: {run['time_s'] / 60:.1f} min wall, "
+        f"{run['cpu_s'] / 60:.1f} min CPU summed over them"
+    )
+    w = run.get("whole_run")
+    if w:
+        procs = f"{w['jobs']} worker processes" if w["jobs"] > 1 else "1 process"
+        text += (
+            f"; whole benchmark ({', '.join(w['methods'])}"
+            + (f", {w['invocations']} invocations with --resume" if w["invocations"] > 1 else "")
+            + f"): {w['wall_s'] / 60:.1f} min wall, {w['cpu_s'] / 60:.1f} min CPU, {procs} "
+            f"on {os.cpu_count()} cores"
+        )
+    return text + f" (load average at the end {os.getloadavg()[0]:.1f})."
+
+
 def markdown(method: str, table: dict, run: dict, reps: int) -> list[str]:
     md = [
         f"### {method}",
         "",
         f"{table['n_trials']} interval trials ({table['n_failed']} failed fits), "
-        f"{reps} replications per 1 % case; {run['time_s'] / 60:.1f} min wall "
-        f"(load average at the end {os.getloadavg()[0]:.1f}).",
+        f"{reps} replications per 1 % case; {timing(run)}",
         "",
         "| nominal | empirical (pooled) | 99 % CI of the rate | binomial p | rejected at 1 % |",
         "|---|---|---|---|---|",
@@ -399,31 +351,49 @@ def markdown(method: str, table: dict, run: dict, reps: int) -> list[str]:
     return md
 
 
-def save_results(method: str, table: dict, run: dict) -> None:
-    """Merge one method's table and rows into ``results/calibration.json``."""
-    RESULTS.mkdir(parents=True, exist_ok=True)
-    path = RESULTS / "calibration.json"
+@dataclasses.dataclass(frozen=True)
+class Settings:
+    """One invocation: replications, and where its output goes (``docs``: the figures in
+    docs/figures and the sections in BENCHMARKS.md, else both next to the results)."""
+
+    reps: int
+    flutter_reps: int
+    ode_reps: int
+    out: Path
+    docs: bool
+
+
+def save_results(method: str, table: dict, run: dict, out: Path) -> None:
+    """Merge one method's table and rows into ``calibration.json`` in ``out`` (and the
+    whole run's times, once it is over)."""
+    out.mkdir(parents=True, exist_ok=True)
+    path = out / "calibration.json"
     results = json.loads(path.read_text()) if path.exists() else {}
     results[method] = {"table": table, **run}
+    if "whole_run" in run:
+        results["whole_run"] = run["whole_run"]
     path.write_text(json.dumps(results, indent=1))
 
 
 def write_report(
-    method: str, run: dict, reps: int, section: str, intro: list[str], title: str, extra=()
+    method: str, run: dict, cfg: Settings, section: str, intro: list[str], title: str, extra=()
 ) -> None:
     """Coverage table, reliability figure, results file and the BENCHMARKS.md section of one
     method's run (``intro`` lines before the table, ``extra`` lines after it)."""
     table = coverage_table(run["rows"])
     figure = f"calibration_{method}.png"
-    reliability_figure(method, table, FIG / figure)
-    save_results(method, table, run)
-    md = [*intro, "", *markdown(title, table, run, reps), "", *extra]
-    md += [f"![reliability](docs/figures/{figure})"]
-    write_section(section, "\n".join(md))
-    log(f"{method} done in {run['time_s'] / 60:.1f} min")
+    reliability_figure(method, table, (FIG if cfg.docs else cfg.out) / figure)
+    save_results(method, table, run, cfg.out)
+    md = [*intro, "", *markdown(title, table, run, cfg.reps), "", *extra]
+    md += [f"![reliability]({'docs/figures/' if cfg.docs else ''}{figure})"]
+    if cfg.docs:
+        write_section(section, "\n".join(md))
+    else:
+        (cfg.out / f"{section}.md").write_text("\n".join(md) + "\n")
+    log(f"{method} report written ({timing(run)})")
 
 
-def report_mechanistic(reps: int, resume: bool = False, flutter_reps: int = 10) -> None:
+def report_mechanistic(run: dict, cfg: Settings) -> None:
     intro = [
         "## Calibration of intervals",
         "",
@@ -435,13 +405,12 @@ def report_mechanistic(reps: int, resume: bool = False, flutter_reps: int = 10) 
         "its default pitch stiffness and at `ka3` ×1.3, free `ca, ka2, ka3` (whole-diagram "
         "fits from the truth × ("
         + ", ".join(f"{k} ×{v:g}" for k, v in MECHANISTIC_START.items())
-        + f")), {flutter_reps} replications per flutter case. The wall time includes "
-        "that of earlier runs whose replications were read back (`--resume`).",
+        + f")), {cfg.flutter_reps} replications per flutter case. Times are summed over the "
+        "replications (with those of earlier runs read back by `--resume`).",
     ]
-    run = run_mechanistic(reps, resume, flutter_reps)
     title = "Mechanistic (delta method on the Gauss–Newton covariance)"
     extra = flutter_notes(run["rows"])
-    write_report("mechanistic", run, reps, "calibration", intro, title, extra)
+    write_report("mechanistic", run, cfg, "calibration", intro, title, extra)
 
 
 def undefined_intervals(rows: list[dict], level: float = 0.95) -> int:
@@ -451,10 +420,9 @@ def undefined_intervals(rows: list[dict], level: float = 0.95) -> int:
     )
 
 
-def report_kernel(reps: int, resume: bool = False, ode_reps: int = 10) -> None:
+def report_kernel(run: dict, cfg: Settings) -> None:
     from bifid.identify.forced_kernel._uncertainty import ERROR_DOF, ERROR_SCALE
 
-    run = run_kernel(reps, resume, ode_reps)
     intro = [
         "## Calibration of intervals: kernel model of forced systems",
         "",
@@ -463,7 +431,7 @@ def report_kernel(reps: int, resume: bool = False, ode_reps: int = 10) -> None:
         "systems: the averaged Duffing oscillator (FRC exact in closed form), the Duffing "
         "ODE and Shaw–Pierre (ODEs; training FRCs and truth by continuation, fitted as "
         "`bifid fit forced --selection loo` fits them). "
-        f"{reps} replications per 1 % case of the averaged oscillator, {ode_reps} per "
+        f"{cfg.reps} replications per 1 % case of the averaged oscillator, {cfg.ode_reps} per "
         "case of the ODEs. The intervals' shape (a scaled Student t of the standardised "
         f"errors, c = {ERROR_SCALE}, ν = {ERROR_DOF}) was fitted on two sets of tuning "
         "seeds (`--tune-kernel`: the same cases on the seeds offset by "
@@ -480,10 +448,10 @@ def report_kernel(reps: int, resume: bool = False, ode_reps: int = 10) -> None:
         "",
     ]
     title = "Kernel (posterior samples and jackknife, scaled Student t)"
-    write_report("kernel", run, reps, "calibration-kernel", intro, title, extra)
+    write_report("kernel", run, cfg, "calibration-kernel", intro, title, extra)
 
 
-def report_hybrid(reps: int, resume: bool = False, flutter_reps: int = 10) -> None:
+def report_hybrid(run: dict, cfg: Settings) -> None:
     from bifid.identify.hopf_hybrid._uncertainty import SCALE
 
     intro = [
@@ -491,7 +459,7 @@ def report_hybrid(reps: int, resume: bool = False, flutter_reps: int = 10) -> No
         "",
         "Hopf point (speed and frequency) and cycle fold (speed and amplitude) of the `hopf` "
         "system (eq. 5.2) and of the `flutter` model (default pitch stiffness and `ka3` "
-        f"×1.3, {flutter_reps} replications each) learnt by the hybrid model from eight "
+        f"×1.3, {cfg.flutter_reps} replications each) learnt by the hybrid model from eight "
         "simulated cycles with noise on every sample; a fresh noise draw and a fresh training "
         "seed per replication "
         "(`benchmarks/bench_calibration.py --method hybrid`, cases in its docstring; method "
@@ -508,31 +476,28 @@ def report_hybrid(reps: int, resume: bool = False, flutter_reps: int = 10) -> No
         "`results/calibration_hybrid_tuning_rows.json`); these "
         f"replications use seeds offset by {HYBRID_SEED_OFFSET}.",
     ]
-    run = run_hybrid(reps, resume, flutter_reps)
     title = "Hybrid (bootstrap of the noise and ensemble over seeds)"
     extra = flutter_notes(run["rows"])
-    write_report("hybrid", run, reps, "calibration-hybrid", intro, title, extra)
+    write_report("hybrid", run, cfg, "calibration-hybrid", intro, title, extra)
 
 
-def tune_hybrid(reps: int, flutter_reps: int = 10) -> None:
-    """Tuning run of the hybrid intervals' calibration factor ``c``: the cases of
-    :func:`run_hybrid` on the seeds without the offset (0..reps-1, +1000 per case), rows in
-    ``results/calibration_hybrid_tuning_rows.json``, and per level the factor that makes
-    the pooled tuning coverage exact: ``c`` times the level's quantile of ``|q̂ - q|`` over
-    the interval's half width (eight bootstrap refits: ``t`` with 7 degrees of freedom). The factor
-    in use is read at 95 %; the reported run (:func:`report_hybrid`) validates it."""
+REPORTS = {"mechanistic": report_mechanistic, "kernel": report_kernel, "hybrid": report_hybrid}
+
+
+def tune_hybrid(cfg: Settings, jobs: int, resume: bool) -> None:
+    """Tuning run of the hybrid intervals' calibration factor ``c``: the cases of the
+    hybrid method on the seeds without the offset (0..reps-1, +1000 per case), rows in
+    ``calibration_hybrid_tuning_rows.json``, and per level the factor that makes the pooled
+    tuning coverage exact: ``c`` times the level's quantile of ``|q̂ - q|`` over the
+    interval's half width (eight bootstrap refits: ``t`` with 7 degrees of freedom). The
+    factor in use is read at 95 %; the reported run (:func:`report_hybrid`) validates it."""
     from scipy.stats import t as student
 
     from bifid.identify.hopf_hybrid._uncertainty import SCALE
 
-    global HYBRID_SEED_OFFSET
-    HYBRID_SEED_OFFSET = 0
-    cases = [
-        (name, frac, (hybrid_replication, a2, noise)) for name, a2, noise, frac in HYBRID_CASES
-    ]
-    cases += [(n, flutter_reps / reps, (hybrid_flutter, f, e)) for n, f, e in FLUTTER_CASES]
-    path = "calibration_hybrid_tuning_rows.json"
-    rows = run_cases(resumable(RESULTS / path, False), cases, reps, path)["rows"]
+    cases = method_cases("hybrid", cfg.reps, cfg.flutter_reps, offset=0)
+    group = Group("hybrid tuning", cases, cfg.out / "calibration_hybrid_tuning_rows.json")
+    rows = run([group], cfg.reps, jobs, resume)[0][group.name]["rows"]
     for lv in LEVELS:
         z = []
         for r in rows:
@@ -549,58 +514,68 @@ def tune_hybrid(reps: int, flutter_reps: int = 10) -> None:
         )
 
 
+def tune_kernel(cfg: Settings, jobs: int, resume: bool) -> None:
+    """Tuning runs of the kernel intervals' shape: the kernel cases on the seeds offset by
+    each of ``KERNEL_TUNE_OFFSETS`` in one pool, rows (seeds with the offset) in
+    ``calibration_kernel_tuning_rows.json``, analysed by :func:`kernel_tuning_report`."""
+    groups = [
+        Group(
+            f"kernel tuning {o}",
+            method_cases("kernel", cfg.reps, cfg.ode_reps, offset=o),
+            cfg.out / f"calibration_kernel_tuning_{o}_rows.json",
+        )
+        for o in KERNEL_TUNE_OFFSETS
+    ]
+    runs = run(groups, cfg.reps, jobs, resume)[0]
+    rows = []
+    for g, o in zip(groups, KERNEL_TUNE_OFFSETS, strict=True):
+        rows += [{**r, "seed": r["seed"] + o} for r in runs[g.name]["rows"]]
+    (cfg.out / "calibration_kernel_tuning_rows.json").write_text(json.dumps(rows))
+    for g in groups:  # the parts, kept until the whole is written (for --resume)
+        g.rows_path.unlink()
+    kernel_tuning_report(rows, LEVELS)
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--reps", type=int, default=40, help="replications of each 1 %% case")
-    ap.add_argument("--quick", action="store_true", help="4 replications per 1 %% case")
-    ap.add_argument(
-        "--method",
-        choices=("all", "mechanistic", "kernel", "hybrid"),
-        default="all",
-        help="which method",
-    )
-    ap.add_argument(
-        "--resume",
-        action="store_true",
-        help="read back the replications already in results/ and run only new seeds",
-    )
-    ap.add_argument(
-        "--flutter-reps",
-        type=int,
-        default=10,
-        help="mechanistic, hybrid: replications of each flutter case",
-    )
-    ap.add_argument(
-        "--ode-reps", type=int, default=10, help="kernel: replications of each ODE case"
-    )
-    ap.add_argument(
-        "--tune-hybrid",
-        action="store_true",
-        help="hybrid: the tuning run of the calibration factor (seeds without the offset)",
-    )
-    ap.add_argument(
-        "--tune-kernel",
-        action="store_true",
-        help="kernel: the tuning runs of the intervals' shape (two other sets of seeds)",
-    )
+    add = ap.add_argument
+    add("--reps", type=int, default=40, help="replications of each 1 %% case")
+    add("--method", choices=("all", *REPORTS), default="all", help="which method")
+    add("--jobs", type=int, default=default_jobs(), help="processes (default: cores, ≤ 4)")
+    add("--out", type=Path, help="directory of the rows (default benchmarks/results/)")
+    add("--flutter-reps", type=int, default=10, help="replications of each flutter case")
+    add("--ode-reps", type=int, default=10, help="kernel: replications of each ODE case")
+    for flag, text in (
+        ("--quick", "4 replications per 1 %% case, 2 per other case, out/calibration_quick/"),
+        ("--resume", "read back the replications in the rows files, run only new seeds"),
+        ("--xla-one-thread", "XLA on one intra-op thread per process"),
+        ("--tune-hybrid", "hybrid: tuning run of the calibration factor (seeds not offset)"),
+        ("--tune-kernel", "kernel: tuning runs of the intervals' shape (two other seed sets)"),
+    ):
+        add(flag, action="store_true", help=text)
     args = ap.parse_args()
-    if args.tune_kernel:
-        cases = (KERNEL_CASES, KERNEL_ODE_CASES, args.ode_reps / args.reps)
-        tune_kernel(run_cases, cases, args.reps, LEVELS)
-        return
-    if args.tune_hybrid:
-        tune_hybrid(args.reps, args.flutter_reps)
-        return
     if args.quick:
-        args.reps = 4
-        args.ode_reps = 2
-        args.flutter_reps = 2
-    if args.method in ("all", "mechanistic"):
-        report_mechanistic(args.reps, args.resume, args.flutter_reps)
-    if args.method in ("all", "kernel"):
-        report_kernel(args.reps, args.resume, args.ode_reps)
-    if args.method in ("all", "hybrid"):
-        report_hybrid(args.reps, args.resume, args.flutter_reps)
+        args.reps, args.ode_reps, args.flutter_reps = 4, 2, 2
+    out = args.out or (ROOT / "out" / "calibration_quick" if args.quick else RESULTS)
+    docs = not args.quick and out.resolve() == RESULTS.resolve()
+    cfg = Settings(args.reps, args.flutter_reps, args.ode_reps, out, docs)
+    configure(args.xla_one_thread)
+    if args.tune_kernel:
+        return tune_kernel(cfg, args.jobs, args.resume)
+    if args.tune_hybrid:
+        return tune_hybrid(cfg, args.jobs, args.resume)
+    methods = [m for m in REPORTS if args.method in ("all", m)]
+    sub = {"mechanistic": cfg.flutter_reps, "hybrid": cfg.flutter_reps, "kernel": cfg.ode_reps}
+    groups = [Group(m, method_cases(m, cfg.reps, sub[m]), out / ROWS_FILES[m]) for m in methods]
+    previous = out / "calibration.json"
+    previous = json.loads(previous.read_text()) if args.resume and previous.exists() else {}
+    runs, whole = run(groups, cfg.reps, args.jobs, args.resume, lambda m, r: REPORTS[m](r, cfg))
+    whole = {**whole, "methods": methods, "invocations": 1}
+    for k in ("wall_s", "cpu_s", "invocations"):  # a resumed run adds the earlier ones
+        whole[k] += previous.get("whole_run", {}).get(k, 0)
+    for m in methods:  # again, with the whole run's times
+        REPORTS[m]({**runs[m], "whole_run": whole}, cfg)
+    log(f"whole run: {whole['wall_s'] / 60:.1f} min wall, {whole['cpu_s'] / 60:.1f} min CPU")
 
 
 if __name__ == "__main__":
