@@ -22,14 +22,10 @@ import jax.numpy as jnp
 import numpy as np
 
 from bifid.errors import BifidInputError, ConvergenceError, ConvergenceWarning
-from bifid.identify.forced_kernel._gp import (
-    GPRegressor,
-    HyperBounds,
-    laplace_log_errors,
-    minimize_multistart,
-)
+from bifid.identify.forced_kernel._gp import GPRegressor, HyperBounds
 from bifid.identify.forced_kernel._gp_core import neg_log_marginal_likelihood, padded_args
 from bifid.identify.forced_kernel._reduced import ReducedModel, ab_grid, eigs_mean_g
+from bifid.identify.forced_kernel._search import laplace_log_errors, minimize_multistart
 from bifid.signal import evaluate_series, fourier_project
 
 __all__ = ["a_samples", "fit_kappa", "fit_observation", "training_losses"]
