@@ -12,6 +12,10 @@ import numpy as np
 
 DUFFING = {"c": 0.0015, "k": 0.0005, "w0": 1.0, "kappa": 0.5}
 KERNEL_TRAIN_F, KERNEL_PREDICT_F = (0.007, 0.01), 0.0085
+# phase lags [rad] along the predicted FRC where its amplitude interval is checked (the
+# quantities "amplitude at lag ..."; kept apart from the special points in the report)
+BAND_LAGS = (0.4, 0.8, 1.2, 1.57, 1.9, 2.3, 2.7)
+BAND_PREFIX = "amplitude at lag "
 
 
 def duffing_frc(forcing: float, psi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -56,7 +60,9 @@ def kernel_replication(noise: float, seed: int, levels: Sequence[float]) -> list
         lv: model.predict_diagram(kind="frc", forcing=KERNEL_PREDICT_F, range=(0.95, 1.2), level=lv)
         for lv in levels
     }
-    return frc_rows(truth, diagrams)
+    return frc_rows(
+        truth, diagrams, lambda lag: duffing_frc(KERNEL_PREDICT_F, np.pi - np.asarray(lag))[1]
+    )
 
 
 # Simulated forced systems: the FRCs of the true ODE by continuation (the truth module of
@@ -95,6 +101,20 @@ def ode_truth(system: str) -> dict[str, float]:
         raise RuntimeError(f"the true FRC of {system} has {folds.size} folds in the window")
     om, amp = true_peak(d)
     return {"fold_low": folds[0], "fold_high": folds[1], "peak": om, "peak_amp": amp}
+
+
+def ode_amplitude_at(system: str):
+    """The true FRC's amplitude as a function of the phase lag (cubic spline)."""
+    from scipy.interpolate import CubicSpline
+
+    from bench_forced_kernel import truth_frc
+
+    cfg = KERNEL_ODES[system]
+    d = truth_frc(system, cfg["predict"], cfg["window"])
+    order = np.argsort(d["phase"])
+    lag, amp = np.asarray(d["phase"])[order], np.asarray(d["amplitude"])[order]
+    keep = np.concatenate([[True], np.diff(lag) > 0])
+    return CubicSpline(lag[keep], amp[keep])
 
 
 def ode_dataset(system: str, noise: float, seed: int):
@@ -137,11 +157,13 @@ def ode_kernel_replication(
             )
             for lv in levels
         }
-    return frc_rows(ode_truth(system), diagrams)
+    return frc_rows(ode_truth(system), diagrams, ode_amplitude_at(system))
 
 
-def frc_rows(truth: dict[str, float], diagrams: dict) -> list[dict]:
-    """Rows of the FRC's two folds (Ω) and peak (Ω, amplitude), ``diagrams`` by level."""
+def frc_rows(truth: dict[str, float], diagrams: dict, amplitude_at=None) -> list[dict]:
+    """Rows of the FRC's two folds (Ω) and peak (Ω, amplitude), ``diagrams`` by level; with
+    ``amplitude_at(lag)`` (the true amplitude at a phase lag) also the predicted amplitude
+    and its interval at each of ``BAND_LAGS`` inside the predicted curve."""
     rows = {k: {"quantity": k, "truth": float(v), "intervals": {}} for k, v in truth.items()}
     for lv, d in diagrams.items():
         folds = sorted(d.special("fold"), key=lambda sp: sp.param)
@@ -155,7 +177,33 @@ def frc_rows(truth: dict[str, float], diagrams: dict) -> list[dict]:
         rows["peak_amp"]["estimate"] = float(np.ravel(peak.data["amplitude"])[0])
         lo, hi = peak.intervals["amplitude"]
         rows["peak_amp"]["intervals"][str(lv)] = [float(lo[0]), float(hi[0])]
+        if amplitude_at is not None:
+            rows.update(band_rows(d.branches[0], str(lv), amplitude_at, rows))
     return list(rows.values())
+
+
+def band_rows(branch, level: str, amplitude_at, rows: dict) -> dict:
+    """The branch's amplitude and its interval at ``level``, interpolated in the phase lag
+    at each of ``BAND_LAGS`` the branch covers, as rows (``rows``: those made so far)."""
+    lag = np.asarray(branch.data["phase"], dtype=float)
+    order = np.argsort(lag)
+    lag = lag[order]
+    amp = np.asarray(branch.data["amplitude"], dtype=float)[order, 0]
+    lo, hi = (np.asarray(v, dtype=float)[order, 0] for v in branch.intervals["amplitude"])
+    out = {}
+    for at in BAND_LAGS:
+        if not lag[0] < at < lag[-1]:
+            continue
+        key = f"{BAND_PREFIX}{at:g}"
+        row = rows.get(key) or {
+            "quantity": key,
+            "truth": float(amplitude_at(at)),
+            "estimate": float(np.interp(at, lag, amp)),
+            "intervals": {},
+        }
+        row["intervals"][level] = [float(np.interp(at, lag, lo)), float(np.interp(at, lag, hi))]
+        out[key] = row
+    return out
 
 
 # the shape of the kernel intervals (their scaled Student t) was fitted on two sets of seeds,
@@ -170,13 +218,25 @@ def kernel_tuning_report(rows: list[dict], levels: Sequence[float]) -> None:
     seeds offset by each of ``KERNEL_TUNE_OFFSETS``, ``bench_calibration.py --tune-kernel``):
     prints the maximum-likelihood scaled Student t of the errors over the standard errors
     (``|q̂ - q| / s``, ``s`` read back from the 95 % half widths) and its coverage per level,
-    against the constants in use."""
+    against the constants in use — for the special points, and apart for the amplitudes
+    along the FRC (``BAND_PREFIX`` quantities)."""
+    ok = [r for r in rows if "failed" not in r]
+    band = [r["quantity"].startswith(BAND_PREFIX) for r in ok]
+    for name, part in (
+        ("special points", [r for r, b in zip(ok, band, strict=True) if not b]),
+        ("amplitudes along the FRC", [r for r, b in zip(ok, band, strict=True) if b]),
+    ):
+        if part:
+            print(f"-- {name}")
+            _shape_fit(part, levels)
+
+
+def _shape_fit(ok: list[dict], levels: Sequence[float]) -> None:
     import scipy.optimize
     import scipy.stats
 
     from bifid.identify.forced_kernel._uncertainty import ERROR_DOF, ERROR_SCALE
 
-    ok = [r for r in rows if "failed" not in r]
     iv = np.array([r["intervals"]["0.95"] for r in ok])
     se = 0.5 * (iv[:, 1] - iv[:, 0]) / (ERROR_SCALE * scipy.stats.t.ppf(0.975, ERROR_DOF))
     z = np.abs([r["estimate"] - r["truth"] for r in ok]) / se
@@ -195,3 +255,19 @@ def kernel_tuning_report(rows: list[dict], levels: Sequence[float]) -> None:
             f"level {lv}: coverage {np.mean(z <= q_use):.3f} in use, "
             f"{np.mean(z <= q_fit):.3f} fitted"
         )
+
+
+def band_lines(table: dict, levels: Sequence[float]) -> list[str]:
+    """Markdown lines of the coverage ``table`` of the amplitude intervals along the
+    predicted FRCs (the ``BAND_PREFIX`` quantities, not pooled with the special points)."""
+    cells = [table["levels"][str(lv)] for lv in levels]
+    return [
+        f"Along the predicted FRC ({table['n_trials']} trials: the amplitude at phase lags "
+        f"{', '.join(f'{x:g}' for x in BAND_LAGS)} rad, where the curve reaches them):",
+        "",
+        "| nominal | " + " | ".join(f"{lv:.0%}" for lv in levels) + " |",
+        "|---" * (len(levels) + 1) + "|",
+        "| empirical | " + " | ".join(f"{c['rate']:.3f}" for c in cells) + " |",
+        "| binomial p | " + " | ".join(f"{c['p_value']:.2g}" for c in cells) + " |",
+        "",
+    ]

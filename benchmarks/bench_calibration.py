@@ -82,8 +82,10 @@ from _calibration_flutter import (
     mechanistic_rows,
 )
 from _calibration_kernel import (
+    BAND_PREFIX,
     KERNEL_SEED_OFFSET,
     KERNEL_TUNE_OFFSETS,
+    band_lines,
     kernel_replication,
     kernel_tuning_report,
     ode_kernel_replication,
@@ -439,6 +441,9 @@ def report_kernel(run: dict, cfg: Settings) -> None:
         "`results/calibration_kernel_tuning_rows.json`); these replications use seeds "
         f"offset by {KERNEL_SEED_OFFSET}.",
     ]
+    on_band = [r.get("quantity", "").startswith(BAND_PREFIX) for r in run["rows"]]
+    band = [r for r, b in zip(run["rows"], on_band, strict=True) if b]
+    run = {**run, "rows": [r for r, b in zip(run["rows"], on_band, strict=True) if not b]}
     extra = [
         f"Undefined intervals (no posterior sample has the fold or peak: `null`), counted "
         f"as not covering: {undefined_intervals(run['rows'])} of "
@@ -447,6 +452,8 @@ def report_kernel(run: dict, cfg: Settings) -> None:
         "folds of the true one (spurious folds where the GP of `a` follows the noise).",
         "",
     ]
+    if band:
+        extra += band_lines(coverage_table(band), LEVELS)
     title = "Kernel (posterior samples and jackknife, scaled Student t)"
     write_report("kernel", run, cfg, "calibration-kernel", intro, title, extra)
 
