@@ -16,7 +16,7 @@ of ``--repeats`` warm runs after one warm-up run, which also gives the compile t
   undamped nonlinear normal modes by SciPy shooting.
 
 Run ``python benchmarks/bench_orbits.py`` (or ``make bench``); writes the "orbits"
-section of BENCHMARKS.md.
+section of BENCHMARKS.md. ``--sections adaptation --no-write`` runs one part and prints.
 """
 
 from __future__ import annotations
@@ -183,26 +183,38 @@ def backbones(repeats: int) -> list[str]:
     return rows
 
 
+SECTIONS = {
+    "adaptation": (
+        f"### Cost of mesh adaptation (van der Pol, μ from the Hopf point to {MU_END:g})",
+        adaptation,
+    ),
+    "resonance": ("### A narrow superharmonic resonance", resonance),
+    "floquet": ("### Floquet multipliers of strongly contracting orbits", floquet_labels),
+    "backbones": ("### Backbones of both shaw_pierre modes", backbones),
+}
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[1])
     ap.add_argument("--repeats", type=int, default=2)
+    ap.add_argument(
+        "--sections",
+        nargs="*",
+        default=list(SECTIONS),
+        choices=list(SECTIONS),
+        help="run these sections only (with --no-write)",
+    )
+    ap.add_argument("--no-write", action="store_true", help="print, do not write BENCHMARKS.md")
     args = ap.parse_args()
-    md = [
-        "## orbits — mesh adaptation, Floquet multipliers, resonances, backbones",
-        "",
-        f"### Cost of mesh adaptation (van der Pol, μ from the Hopf point to {MU_END:g})",
-        "",
-    ]
-    md += adaptation(args.repeats)
-    md += ["", "### A narrow superharmonic resonance", ""]
-    md += resonance(args.repeats)
-    md += ["", "### Floquet multipliers of strongly contracting orbits", ""]
-    md += floquet_labels(args.repeats)
-    md += ["", "### Backbones of both shaw_pierre modes", ""]
-    md += backbones(args.repeats)
+    md = ["## orbits — mesh adaptation, Floquet multipliers, resonances, backbones"]
+    for name in args.sections:
+        md += ["", SECTIONS[name][0], ""]
+        md += SECTIONS[name][1](args.repeats)
     md += ["", f"Reproduce: `python benchmarks/bench_orbits.py --repeats {args.repeats}`."]
-    write_section("orbits", "\n".join(md))
-    print("\n".join(md))
+    text = "\n".join(md)
+    if not args.no_write and args.sections == list(SECTIONS):
+        write_section("orbits", text)
+    print(text)
 
 
 if __name__ == "__main__":

@@ -8,7 +8,13 @@ import pytest
 from scipy.integrate import solve_ivp
 from scipy.optimize import brentq
 
-from bifid.continuation import ContinuationOptions, periodic_orbits, resample_orbit
+from bifid.continuation import (
+    ContinuationOptions,
+    continue_from_hopf,
+    periodic_orbits,
+    resample_orbit,
+)
+from bifid.errors import BifidInputError
 from bifid.signal import spectral_tail
 from bifid.systems import get_system
 
@@ -75,3 +81,28 @@ def test_relaxation_cycle_on_a_rescaled_mesh(cycle):
     assert spectral_tail(U) <= 1e-9
     fine = resample_orbit(U, N_SAMPLES)
     assert np.allclose(fine.max(axis=0), samples.max(axis=0), rtol=1e-6, atol=1e-6)
+
+
+def test_default_keeps_uniform_meshes_on_a_smooth_branch():
+    # the van der Pol cycle up to mu = 1 is resolved on small uniform meshes
+    s = get_system("vanderpol")
+    assert ContinuationOptions().rescale == "auto"
+    _, (br,) = continue_from_hopf(s, "mu", -0.5, 1.0, n_mesh=64)
+    assert br.status == "range" and "rescaled" not in br.meta
+    assert int(np.max(br.data["n_mesh"])) <= 512
+    with pytest.raises(BifidInputError):
+        ContinuationOptions(rescale="yes")
+
+
+def test_default_branch_switches_to_rescaled_time_at_the_mesh_limit():
+    """Uniform meshes of up to 256 points do not resolve the van der Pol cycle beyond
+    mu ~ 2; by default the branch redistributes its points there and reaches mu = 3,
+    its period as simulated."""
+    s = get_system("vanderpol")
+    _, (br,) = continue_from_hopf(s, "mu", -0.5, 3.0, n_mesh=64, max_mesh=256)
+    assert br.status == "range" and br.params[-1] == pytest.approx(3.0, abs=1e-12)
+    assert br.meta.get("rescaled") is True
+    assert int(np.max(br.data["n_mesh"])) <= 256
+    assert np.all(br.data["spectral_tail"] <= 1e-9)
+    period, _, _ = simulated_cycle(3.0)
+    assert abs(br.data["period"][-1] - period) <= 1e-8 * period

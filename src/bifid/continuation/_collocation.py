@@ -18,7 +18,8 @@ tolerance, coarsened again where the orbits are smooth, up to ``max_mesh``); the
 branch's Floquet multipliers, special points and end are worked out in
 ``_orbit_branch``.
 
-**Rescaled time** (``ContinuationOptions.rescale``, ``_density``): the mesh points may
+**Rescaled time** (``ContinuationOptions.rescale``, ``_density``; by default "auto": only
+once a uniform mesh would grow large, ``_mesh``): the mesh points may
 sit at the physical times ``t(tau) = (T / 2 pi) int_0^tau h`` of a smooth positive
 density ``h`` of mean 1, fixed between mesh updates (``args["h"]``); the equations become
 
@@ -44,7 +45,7 @@ import jax.numpy as jnp
 import numpy as np
 
 from bifid.continuation._branch import Branch, SpecialPoint
-from bifid.continuation._density import convert_values, density_values
+from bifid.continuation._density import convert_values, density_values, equidistributing_mesh
 from bifid.continuation._fourier import fourier_differentiation_matrix, fourier_grid, resample_orbit
 from bifid.continuation._mesh import (
     MeshPolicy,
@@ -196,7 +197,7 @@ def hopf_orbits(
         ``kind="periodic"``; ``solutions[:, :M*n+1]`` the orbits at the uniform times
         ``T k / M`` and the period, ``M = meta["n_mesh"]``: the largest mesh of the branch
         (orbits computed on coarser meshes are interpolated exactly), or, for a branch
-        computed in a rescaled time (``options.rescale``), the fewest uniform samples
+        computed (in part) in a rescaled time (``options.rescale``), the fewest uniform samples
         ``M_max 2^j`` that resolve every orbit (at most
         ``_density.MAX_EXPORT_SAMPLES``; ``meta["rescaled"]``); ``data`` has ``period``,
         ``amplitude`` (n_points, n) = max_t|x_s(t)|, ``n_mesh`` (the mesh of each orbit),
@@ -216,6 +217,37 @@ def hopf_orbits(
     p = jnp.asarray(hopf.data["p"] if p is None else p, dtype=jnp.float64)
     M, n = n_mesh, system.n_states
     stage = orbit_stage(system, p, idx, M)
+    eps = options.ds if amplitude0 is None else float(amplitude0)
+    y_h, y1, t0, args = _first_orbit(hopf, param, stage, p, idx, M, n, eps, options, resolution_tol)
+    omega = float(hopf.data["omega"])
+    ends = OrbitEnds(
+        first_amplitude=_centred_amplitude(y1, M, n), first_period=TWO_PI / omega, n_states=n
+    )
+    stage_of = functools.partial(orbit_stage, system, p, idx)
+    run = run_adaptive(
+        stage_of,
+        y1,
+        t0,
+        policy,
+        options,
+        n,
+        stop=ends.stop,
+        monitor=ends.monitor,
+        progress=progress,
+    )
+    run.ys.insert(0, y_h)
+    run.meshes.insert(0, M)
+    run.tangents.insert(0, t0)
+    run.tails.insert(0, 0.0)
+    run.args.insert(0, args)
+    run.events = [(i + 1, *rest) for i, *rest in run.events]
+    return orbit_branch(system, param, p, run, options, policy, hopf, stage_of, stability)
+
+
+def _first_orbit(hopf, param, stage, p, idx, M, n, eps, options, resolution_tol):
+    """``(y_H, y_1, t_0, args)``: the Hopf point as a constant orbit, the first orbit
+    ``x_H + eps Re(q e^{i tau})`` corrected with its projection on the critical eigenvector
+    ``q`` fixed, the tangent between them and the problem's arguments."""
     tau = fourier_grid(M)
     q = np.asarray(hopf.data["eigenvector"], dtype=complex)
     q = q / np.max(np.abs(q))
@@ -225,7 +257,6 @@ def hopf_orbits(
     y_h = np.concatenate([np.tile(x_h, M), [TWO_PI / omega, hopf.param]])
     t0 = np.concatenate([direction.ravel(), [0.0, 0.0]])
     t0 = t0 / np.sqrt(t0 @ (stage.weights * t0))
-    eps = options.ds if amplitude0 is None else float(amplitude0)
     D = fourier_differentiation_matrix(M)
     args = {
         "p": p,
@@ -249,28 +280,7 @@ def hopf_orbits(
             f"Could not converge the first periodic orbit next to the Hopf point at "
             f"{param}={hopf.param:.8g} (residual {res:.1e}); try a smaller first step (ds)."
         )
-    ends = OrbitEnds(
-        first_amplitude=_centred_amplitude(y1, M, n), first_period=TWO_PI / omega, n_states=n
-    )
-    stage_of = functools.partial(orbit_stage, system, p, idx)
-    run = run_adaptive(
-        stage_of,
-        y1,
-        t0,
-        policy,
-        options,
-        n,
-        stop=ends.stop,
-        monitor=ends.monitor,
-        progress=progress,
-    )
-    run.ys.insert(0, y_h)
-    run.meshes.insert(0, M)
-    run.tangents.insert(0, t0)
-    run.tails.insert(0, 0.0)
-    run.args.insert(0, args)
-    run.events = [(i + 1, *rest) for i, *rest in run.events]
-    return orbit_branch(system, param, p, run, options, policy, hopf, stage_of, stability)
+    return y_h, y1, t0, args
 
 
 def periodic_orbits(
@@ -320,9 +330,14 @@ def periodic_orbits(
     M = n_mesh or orbit.shape[0]
     policy = MeshPolicy.of(M, max_mesh, resolution_tol, adapt, system.n_states, options.rescale)
     V = resample_orbit(orbit, M) if orbit.shape[0] != M else orbit
-    if policy.rescale and policy.adapt and np.ptp(V) > 0 and spectral_tail(V) > resolution_tol:
+    if (
+        policy.rescale is not False
+        and policy.adapt
+        and np.ptp(V) > 0
+        and spectral_tail(V) > resolution_tol
+    ):
         # an orbit with fast phases: its points redistributed along its arclength
-        M = policy.new_mesh(orbit, orbit.shape[0], M)
+        M = equidistributing_mesh(orbit, orbit.shape[0], M)
         V = convert_values(orbit, orbit.shape[0], M)
     n = system.n_states
     lam0 = float(p[idx])

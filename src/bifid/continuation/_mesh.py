@@ -25,9 +25,15 @@ predictor–corrector driver:
   equidistribute the orbit's arclength when the mesh is set (``_density``); an
   unresolved step first tries the same ``M`` redistributed along the last orbit, then
   the next rung with its own density; a coarser rung is tried with its density at most
-  every ``HOLD_STEPS`` steps. :func:`remesh` carries points between any two meshes at
-  the same physical times, so arcs, common meshes and brackets work on rescaled runs
-  unchanged.
+  every ``HOLD_STEPS`` steps. ``rescale="auto"`` (the default of
+  :class:`~bifid.continuation._options.ContinuationOptions`) keeps uniform meshes while
+  the ladder stays within :data:`AUTO_RESCALE_UNKNOWNS` unknowns: an unresolved step
+  whose next uniform rung would exceed it (or ``max_mesh``) redistributes the current
+  points instead, and from then on every mesh of the run is rescaled. Smooth branches
+  thus run exactly as on uniform meshes (the density search is never entered), and only
+  orbits that would need a large uniform mesh pay for it. :func:`remesh` carries points
+  between any two meshes at the same physical times, so arcs, common meshes and
+  brackets work on rescaled runs unchanged.
 
 No orbit whose tail exceeds ``tol`` is ever recorded. Every recorded point carries the
 mesh it was computed on (``AdaptiveRun.meshes``).
@@ -38,12 +44,12 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import Any, Literal
 
 import numpy as np
 
 from bifid.continuation._blas import one_blas_thread
-from bifid.continuation._density import convert_values, equidistributing_mesh
+from bifid.continuation._density import convert_values, density_of, equidistributing_mesh
 from bifid.continuation._options import ContinuationOptions
 from bifid.continuation._palc import (
     Continuation,
@@ -84,6 +90,19 @@ def mesh_ladder(n_mesh: int, max_mesh: int) -> tuple[int, ...]:
     return tuple(sorted(r for r in rungs if r >= n_mesh))
 
 
+#: ``rescale="auto"``: the largest uniform mesh, in unknowns ``M * n_states``, before a
+#: refinement goes to a rescaled mesh instead (where the corrector leaves dense
+#: factorisations for Krylov solves and a uniform rung costs seconds per step)
+AUTO_RESCALE_UNKNOWNS = 1024
+
+
+def auto_rescale_from(n_mesh: int, max_mesh: int, n_states: int) -> int:
+    """The largest rung of the ladder with at most :data:`AUTO_RESCALE_UNKNOWNS`
+    unknowns (never below ``n_mesh``): the uniform meshes of ``rescale="auto"``."""
+    fits = [r for r in mesh_ladder(n_mesh, max_mesh) if r * n_states <= AUTO_RESCALE_UNKNOWNS]
+    return max(fits, default=n_mesh)
+
+
 #: the mesh is coarsened when the orbit's tail on the next coarser mesh is below
 #: tol * COARSEN_MARGIN
 COARSEN_MARGIN = 1e-2
@@ -120,10 +139,14 @@ class MeshPolicy:
         Largest spectral tail of a recorded orbit.
     adapt : bool
         False keeps ``n_mesh`` throughout (an unresolved orbit then ends the branch).
-    rescale : bool
+    rescale : bool or "auto"
         Meshes in a rescaled time (``_density``): every new mesh gets the density that
         equidistributes the orbit's arclength, and an unresolved step first tries the same
-        number of points redistributed (only with ``adapt``).
+        number of points redistributed (only with ``adapt``). "auto": uniform meshes up to
+        ``rescale_from`` points, rescaled ones beyond (module docstring).
+    rescale_from : int
+        The largest uniform mesh of ``rescale="auto"`` (default: ``max_mesh``;
+        :meth:`of` sets :func:`auto_rescale_from`).
 
     Attributes
     ----------
@@ -135,7 +158,8 @@ class MeshPolicy:
     max_mesh: int
     tol: float = 1e-9
     adapt: bool = True
-    rescale: bool = False
+    rescale: bool | Literal["auto"] = False
+    rescale_from: int = 0
     ladder: tuple[int, ...] = field(init=False, repr=False, compare=False, default=())
 
     def __post_init__(self) -> None:
@@ -150,6 +174,8 @@ class MeshPolicy:
         if not 0 < self.tol < 1:
             raise BifidInputError(f"the resolution tolerance must lie in (0, 1), got {self.tol}.")
         object.__setattr__(self, "ladder", mesh_ladder(self.n_mesh, self.max_mesh))
+        if self.rescale_from <= 0:
+            object.__setattr__(self, "rescale_from", self.max_mesh)
 
     @classmethod
     def of(
@@ -159,19 +185,42 @@ class MeshPolicy:
         tol: float,
         adapt: bool,
         n_states: int,
-        rescale: bool = False,
+        rescale: bool | Literal["auto"] = False,
     ) -> MeshPolicy:
         """The policy of a driver's arguments (``max_mesh`` default:
-        :func:`default_max_mesh`; never below ``n_mesh``)."""
+        :func:`default_max_mesh`; never below ``n_mesh``; ``rescale_from``:
+        :func:`auto_rescale_from`)."""
         limit = max_mesh if max_mesh is not None else default_max_mesh(n_mesh, n_states)
+        limit = max(limit, n_mesh)
         return cls(
-            n_mesh=n_mesh, max_mesh=max(limit, n_mesh), tol=tol, adapt=adapt, rescale=rescale
+            n_mesh=n_mesh,
+            max_mesh=limit,
+            tol=tol,
+            adapt=adapt,
+            rescale=rescale,
+            rescale_from=auto_rescale_from(n_mesh, limit, n_states),
         )
+
+    def rescaled(self, M: int, M_new: int) -> bool:
+        """Whether the mesh of ``M_new`` points that follows ``M`` gets a density:
+        always (``rescale=True``), never (False), or ("auto") when ``M`` has one or
+        ``M_new`` exceeds ``rescale_from``."""
+        if self.rescale == "auto":
+            return density_of(M) is not None or int(M_new) > self.rescale_from
+        return bool(self.rescale)
+
+    def redistribute(self, M: int) -> bool:
+        """Whether an unresolved step on ``M`` first tries the same number of points
+        redistributed: with ``adapt``, when the next rung is rescaled or there is none."""
+        if not self.adapt or self.rescale is False:
+            return False
+        finer = self.finer(M)
+        return self.rescaled(M, finer if finer is not None else self.max_mesh + 1)
 
     def new_mesh(self, V: np.ndarray, M: int, M_new: int) -> int:
         """The mesh of ``M_new`` points for the orbit ``V`` on ``M``: uniform, or with the
-        density that equidistributes its arclength (``rescale``)."""
-        return equidistributing_mesh(V, M, M_new) if self.rescale else M_new
+        density that equidistributes its arclength (:meth:`rescaled`)."""
+        return equidistributing_mesh(V, M, M_new) if self.rescaled(M, M_new) else M_new
 
     def finer(self, M: int) -> int | None:
         """The next mesh of the ladder above ``M`` (None at the limit)."""
@@ -326,10 +375,12 @@ class _Runner:
             tail = mesh_tail(y_new, self.M, n)
             if tail > pol.tol:
                 switched = None
-                if pol.rescale and pol.adapt and not redistributed:
+                if pol.redistribute(self.M) and not redistributed:
                     # the same number of points, redistributed along the last orbit
                     redistributed = True
-                    switched = self._switch(state, self._new_mesh(state, int(self.M)))
+                    V = np.asarray(state.y[: self.M * n]).reshape(self.M, n)
+                    mesh = equidistributing_mesh(V, self.M, int(self.M))
+                    switched = self._switch(state, mesh)
                 finer = pol.finer(self.M)
                 if switched is None and finer:
                     switched = self._switch(state, self._new_mesh(state, finer))
@@ -377,7 +428,7 @@ class _Runner:
                     switched = self._switch(state, mesh)
                     if switched is not None:
                         state = switched
-                if switched is None and pol.rescale:
+                if switched is None and pol.rescaled(self.M, coarser):
                     hold = HOLD_STEPS  # a rescaled mesh is worked out: not at every step
         out.status, out.message = state.status, state.message
         return out

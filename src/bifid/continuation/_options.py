@@ -4,12 +4,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, Literal
 
 from bifid.errors import BifidInputError
 
 #: default of :attr:`ContinuationOptions.rescale`
-RESCALE_DEFAULT = False
+RESCALE_DEFAULT: bool | Literal["auto"] = "auto"
 
 
 @dataclass(frozen=True)
@@ -40,11 +40,14 @@ class ContinuationOptions:
         Step multiplier after an easy corrector (<= 3 iterations).
     detect_folds, detect_bifurcations : bool
         Locate folds (limit points) and flag branch points / bifurcations.
-    rescale : bool
+    rescale : bool or "auto"
         Periodic orbits: collocate in a rescaled time whose mesh density follows the
         orbit's arclength (``bifid.continuation._density``), so that orbits with fast
-        phases (relaxation oscillations) are resolved on far fewer points; False keeps
-        the uniform mesh in time.
+        phases (relaxation oscillations) are resolved on far fewer points. True: every
+        mesh is rescaled; False: the uniform mesh in time throughout; "auto" (default):
+        uniform meshes while they are cheap, a rescaled one once the uniform mesh would
+        have to grow beyond ``_mesh.AUTO_RESCALE_UNKNOWNS`` unknowns (or beyond
+        ``max_mesh``), so smooth branches cost what they cost on uniform meshes.
     """
 
     ds: float = 0.01
@@ -60,7 +63,7 @@ class ContinuationOptions:
     growth: float = 1.5
     detect_folds: bool = True
     detect_bifurcations: bool = True
-    rescale: bool = RESCALE_DEFAULT
+    rescale: bool | Literal["auto"] = RESCALE_DEFAULT
 
     def __post_init__(self) -> None:
         if not (0 < self.ds_min <= self.ds <= self.ds_max):
@@ -78,6 +81,8 @@ class ContinuationOptions:
             raise BifidInputError(f"direction must be +1 or -1, got {self.direction!r}.")
         if self.max_steps < 1 or self.newton_max_iter < 1:
             raise BifidInputError("max_steps and newton_max_iter must be positive integers.")
+        if not (isinstance(self.rescale, bool) or self.rescale == "auto"):
+            raise BifidInputError(f"rescale must be True, False or 'auto'; got {self.rescale!r}.")
         if not self.growth >= 1.0:
             raise BifidInputError(f"growth must be >= 1, got {self.growth}.")
 

@@ -213,51 +213,13 @@ def orbit_branch(
     from, :data:`~bifid.continuation._orbit_bifurcations.STABILITY_SOURCES`)."""
     n = system.n_states
     idx = system.index(param)
-    status, message = run.status, run.message
     meta: dict = {}
-    # a step across zero amplitude shows up as a "fold" at a vanishing orbit: a Hopf end
-    cut = _zero_amplitude_fold(run, n)
-    if cut is not None:
-        _truncate(run, cut + 1)
-        run.stop_reason = "hopf"
-    if run.stop_reason == "hopf":
-        # the last step, into the Hopf point, may cross zero amplitude: not a fold
-        last = len(run.ys) - 2
-        run.events = [e for e in run.events if not (e[1] == "fold" and e[0] >= last)]
-        status, message = _hopf_end(system, param, p, run, n, meta)
-        if status == "failed":
-            _truncate(run, len(run.ys) - 1)  # the last point is the equilibrium, no orbit
-    else:
-        params_ = np.array([y[m * n + 1] for y, m in zip(run.ys, run.meshes, strict=True)])
-        periods_ = np.array([y[m * n] for y, m in zip(run.ys, run.meshes, strict=True)])
-        if run.stop_reason == "homoclinic" or (
-            status in ("unresolved", "steps", "failed")
-            and homoclinic_signature(params_, periods_, HOMOCLINIC_REMAINING_AT_END)
-        ):
-            k = int(np.argmax(periods_))
-            status = "homoclinic"
-            message = (
-                f"the period grows without bound (largest {periods_[k]:.8g} at "
-                f"{param}={params_[k]:.10g}): a homoclinic orbit near "
-                f"{param} ≈ {params_[-1]:.8g}"
-            )
-            meta["max_period"] = float(periods_[k])
-    ys, M = on_common_mesh(run.ys, run.meshes, n)
+    status, message = _branch_end(system, param, p, run, meta)
     meshes = np.asarray(run.meshes, dtype=int)
-    orbits = ys[:, : M * n].reshape(-1, M, n)
+    fl = _branch_floquet(system, p, idx, run, n, stage_of, stability)
+    ys, M, orbits, amps, centred_states = _exported_orbits(run, n, policy.tol, meta)
     periods = ys[:, M * n]
     params = ys[:, M * n + 1]
-    fl = _branch_floquet(system, p, idx, run, n, stage_of, stability)
-    # peaks are those of the mesh values' interpolant in any time; the mean is in time
-    amps = np.array([max_abs(o) for o in orbits])
-    # per state, about the orbit's mean (as a rig measures it)
-    centred_states = np.array([max_abs(o - time_mean(o, M)) for o in orbits])
-    if density_of(M) is not None:
-        # the branch's orbits leave as samples at uniform times, resolved
-        orbits = export_samples(orbits, M, policy.tol)
-        ys = np.column_stack([orbits.reshape(len(orbits), -1), ys[:, M * n :]])
-        M = orbits.shape[1]
-        meta["rescaled"] = True
     centred = centred_states.max(axis=1) if len(orbits) else np.zeros(0)
     zero = centred <= 1e-12 * max(1.0, float(np.max(np.abs(orbits))))
     findings = Findings()
@@ -320,6 +282,72 @@ def orbit_branch(
         verification={"residual": residual, "spectral_tail": np.asarray(run.tails)},
         candidates=findings.candidates,
     )
+
+
+def _branch_end(system: System, param: str, p, run: AdaptiveRun, meta: dict) -> tuple[str, str]:
+    """The branch's status and message from how its run ended: a Hopf end (an orbit
+    shrinking into an equilibrium, the run cut there), a homoclinic approach (the period
+    growing without bound; ``meta["max_period"]``), else the run's own."""
+    n = system.n_states
+    status, message = run.status, run.message
+    # a step across zero amplitude shows up as a "fold" at a vanishing orbit: a Hopf end
+    cut = _zero_amplitude_fold(run, n)
+    if cut is not None:
+        _truncate(run, cut + 1)
+        run.stop_reason = "hopf"
+    if run.stop_reason == "hopf":
+        # the last step, into the Hopf point, may cross zero amplitude: not a fold
+        last = len(run.ys) - 2
+        run.events = [e for e in run.events if not (e[1] == "fold" and e[0] >= last)]
+        status, message = _hopf_end(system, param, p, run, n, meta)
+        if status == "failed":
+            _truncate(run, len(run.ys) - 1)  # the last point is the equilibrium, no orbit
+    else:
+        params_ = np.array([y[m * n + 1] for y, m in zip(run.ys, run.meshes, strict=True)])
+        periods_ = np.array([y[m * n] for y, m in zip(run.ys, run.meshes, strict=True)])
+        if run.stop_reason == "homoclinic" or (
+            status in ("unresolved", "steps", "failed")
+            and homoclinic_signature(params_, periods_, HOMOCLINIC_REMAINING_AT_END)
+        ):
+            k = int(np.argmax(periods_))
+            status = "homoclinic"
+            message = (
+                f"the period grows without bound (largest {periods_[k]:.8g} at "
+                f"{param}={params_[k]:.10g}): a homoclinic orbit near "
+                f"{param} ≈ {params_[-1]:.8g}"
+            )
+            meta["max_period"] = float(periods_[k])
+    return status, message
+
+
+def _exported_orbits(run: AdaptiveRun, n: int, tol: float, meta: dict):
+    """``(ys, M, orbits, amplitudes, centred amplitudes)`` of a run: every orbit on one
+    mesh of ``M`` uniform times (the run's common mesh, or, when some orbits were computed
+    in a rescaled time, samples resolved to ``tol`` taken from each orbit's own mesh;
+    ``meta["rescaled"]``)."""
+    if any(density_of(m) is not None for m in run.meshes):
+        # some orbits were computed in a rescaled time: every orbit leaves as samples at
+        # uniform times, resolved, taken from its own mesh
+        own = [
+            np.asarray(y[: m * n]).reshape(m, n) for y, m in zip(run.ys, run.meshes, strict=True)
+        ]
+        # peaks are those of the mesh values' interpolant in any time; the mean is in time
+        amps = np.array([max_abs(V) for V in own])
+        # per state, about the orbit's mean (as a rig measures it)
+        centred_states = np.array(
+            [max_abs(V - time_mean(V, m)) for V, m in zip(own, run.meshes, strict=True)]
+        )
+        orbits = export_samples(own, run.meshes, tol)
+        extras = np.array([y[m * n :] for y, m in zip(run.ys, run.meshes, strict=True)])
+        ys = np.column_stack([orbits.reshape(len(orbits), -1), extras])
+        M = orbits.shape[1]
+        meta["rescaled"] = True
+    else:
+        ys, M = on_common_mesh(run.ys, run.meshes, n)
+        orbits = ys[:, : M * n].reshape(-1, M, n)
+        amps = np.array([max_abs(o) for o in orbits])
+        centred_states = np.array([max_abs(o - o.mean(axis=0)) for o in orbits])
+    return ys, M, orbits, amps, centred_states
 
 
 def _branch_floquet(
