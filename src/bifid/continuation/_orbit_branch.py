@@ -362,8 +362,6 @@ def _branch_floquet(
     ok = np.zeros(N, bool)
     V = [np.asarray(y[: m * n]).reshape(m, n) for y, m in zip(run.ys, run.meshes, strict=True)]
     rows = [i for i in range(N) if _centred(V[i]) > 0]
-    # the variational equation is integrated in time from samples at uniform times
-    samples = [integration_samples(V[i], run.meshes[i]) for i in range(N)]
     if rows:
         if stability == "collocation":
             fl = collocation_floquet(
@@ -373,9 +371,10 @@ def _branch_floquet(
             ps = np.repeat(np.asarray(p)[None, :], len(rows), axis=0)
             ps[:, idx] = [run.ys[i][run.meshes[i] * n + 1] for i in rows]
             periods = np.array([run.ys[i][run.meshes[i] * n] for i in rows])
+            # the variational equation is integrated in time from samples at uniform times
             fl = floquet(
                 autonomous_rhs(system.field),
-                [samples[i] for i in rows],
+                [integration_samples(V[i], run.meshes[i]) for i in rows],
                 periods,
                 ps,
                 autonomous=True,

@@ -345,6 +345,7 @@ class GPRegressor:
         )
         # padded copies (sampling) and the raw training set (persistence, baselines)
         self._padded = {"y": yp, "extra_var": evp}
+        self._errors: dict[str, Any] | None = None
         self.x_train_ = np.asarray(xa, dtype=float)
         self.y_train_ = np.asarray(ys_scaled, dtype=float) * float(ys)
         self.extra_var_ = np.asarray(ev_scaled, dtype=float)
@@ -386,6 +387,11 @@ class GPRegressor:
         approximation: the selected θ is not its maximum).
         """
         self._check()
+        if self._errors is None:  # once per fit: ``summary()`` and ``save`` both ask
+            self._errors = self._laplace_errors()
+        return self._errors
+
+    def _laplace_errors(self) -> dict[str, Any]:
         st = self.state_
         d, m = st.n_dim, len(self.basis)
         theta = np.asarray(st.theta, dtype=float)
