@@ -217,28 +217,31 @@ def kernel_tuning_report(rows: list[dict], levels: Sequence[float]) -> None:
     """Analysis of the tuning runs of the kernel intervals' shape (the kernel cases on the
     seeds offset by each of ``KERNEL_TUNE_OFFSETS``, ``bench_calibration.py --tune-kernel``):
     prints the maximum-likelihood scaled Student t of the errors over the standard errors
-    (``|q̂ - q| / s``, ``s`` read back from the 95 % half widths) and its coverage per level,
-    against the constants in use — for the special points, and apart for the amplitudes
-    along the FRC (``BAND_PREFIX`` quantities)."""
+    (``|q̂ - q| / s``, ``s`` read back from the 95 % half widths with the shape in use) and
+    its coverage per level, against the shape in use — for the special points
+    (``ERROR_SCALE``, ``ERROR_DOF``), and apart for the amplitudes along the FRC
+    (``BAND_PREFIX`` quantities; ``BAND_SCALE``, ``BAND_DOF``). The rows must have been made
+    with the shapes in use."""
+    from bifid.identify.forced_kernel import _uncertainty as u
+
     ok = [r for r in rows if "failed" not in r]
     band = [r["quantity"].startswith(BAND_PREFIX) for r in ok]
-    for name, part in (
-        ("special points", [r for r, b in zip(ok, band, strict=True) if not b]),
-        ("amplitudes along the FRC", [r for r, b in zip(ok, band, strict=True) if b]),
+    for name, part, shape in (
+        ("special points", [r for r, b in zip(ok, band, strict=True) if not b], u._SPECIAL),
+        ("amplitudes along the FRC", [r for r, b in zip(ok, band, strict=True) if b], u._BAND),
     ):
         if part:
             print(f"-- {name}")
-            _shape_fit(part, levels)
+            _shape_fit(part, levels, shape)
 
 
-def _shape_fit(ok: list[dict], levels: Sequence[float]) -> None:
+def _shape_fit(ok: list[dict], levels: Sequence[float], shape: tuple[float, float]) -> None:
     import scipy.optimize
     import scipy.stats
 
-    from bifid.identify.forced_kernel._uncertainty import ERROR_DOF, ERROR_SCALE
-
+    scale, dof_use = shape
     iv = np.array([r["intervals"]["0.95"] for r in ok])
-    se = 0.5 * (iv[:, 1] - iv[:, 0]) / (ERROR_SCALE * scipy.stats.t.ppf(0.975, ERROR_DOF))
+    se = 0.5 * (iv[:, 1] - iv[:, 0]) / (scale * scipy.stats.t.ppf(0.975, dof_use))
     z = np.abs([r["estimate"] - r["truth"] for r in ok]) / se
     z = z[np.isfinite(z)]
 
@@ -247,9 +250,9 @@ def _shape_fit(ok: list[dict], levels: Sequence[float]) -> None:
 
     c, dof = np.exp(scipy.optimize.minimize(nll, np.log([0.5, 3.0]), method="Nelder-Mead").x)
     print(f"{len(z)} trials: fitted c = {c:.3f}, dof = {dof:.2f}")
-    print(f"in use: c = {ERROR_SCALE}, dof = {ERROR_DOF}")
+    print(f"in use: c = {scale}, dof = {dof_use}")
     for lv in levels:
-        q_use = ERROR_SCALE * scipy.stats.t.ppf(0.5 + lv / 2, ERROR_DOF)
+        q_use = scale * scipy.stats.t.ppf(0.5 + lv / 2, dof_use)
         q_fit = c * scipy.stats.t.ppf(0.5 + lv / 2, dof)
         print(
             f"level {lv}: coverage {np.mean(z <= q_use):.3f} in use, "

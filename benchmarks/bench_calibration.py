@@ -423,7 +423,12 @@ def undefined_intervals(rows: list[dict], level: float = 0.95) -> int:
 
 
 def report_kernel(run: dict, cfg: Settings) -> None:
-    from bifid.identify.forced_kernel._uncertainty import ERROR_DOF, ERROR_SCALE
+    from bifid.identify.forced_kernel._uncertainty import (
+        BAND_DOF,
+        BAND_SCALE,
+        ERROR_DOF,
+        ERROR_SCALE,
+    )
 
     intro = [
         "## Calibration of intervals: kernel model of forced systems",
@@ -435,7 +440,8 @@ def report_kernel(run: dict, cfg: Settings) -> None:
         "`bifid fit forced --selection loo` fits them). "
         f"{cfg.reps} replications per 1 % case of the averaged oscillator, {cfg.ode_reps} per "
         "case of the ODEs. The intervals' shape (a scaled Student t of the standardised "
-        f"errors, c = {ERROR_SCALE}, ν = {ERROR_DOF}) was fitted on two sets of tuning "
+        f"errors, c = {ERROR_SCALE}, ν = {ERROR_DOF} for the special points, c = {BAND_SCALE}, "
+        f"ν = {BAND_DOF} for the amplitude along the FRC) was fitted on two sets of tuning "
         "seeds (`--tune-kernel`: the same cases on the seeds offset by "
         f"{' and '.join(str(o) for o in KERNEL_TUNE_OFFSETS)}, rows in "
         "`results/calibration_kernel_tuning_rows.json`); these replications use seeds "

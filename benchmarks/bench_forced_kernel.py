@@ -996,7 +996,7 @@ def report(
         )
     L.append("")
     L.append(
-        f"Requirements (untrained F): peak within 2 % — max "
+        f"Tolerances (untrained F): peak within 2 % — max "
         f"{pct(max(abs(r['peak_err']) for r in sp['rows'] if not r['trained']))}; folds "
         f"within 0.1 % — max "
         f"{pct(max(r['fold_err'] for r in sp['rows'] if not r['trained']), 5)}; backbone "

@@ -67,7 +67,7 @@ def bench_linear() -> tuple[str, dict]:
         "",
         "Start: Ia +15 %, ca −20 %, ch +10 %; 8 s at 200 Hz; initial pitch 1e-4 rad.",
         "",
-        "| parameter | true | worst relative error over 5 seeds | target |",
+        "| parameter | true | worst relative error over 5 seeds | tolerance |",
         "|---|---|---|---|",
         *[f"| {k} | {true[k]} | {worst[k]:.2e} | < 1e-2 |" for k in true],
         "",
@@ -247,7 +247,7 @@ def bench_wd() -> tuple[str, dict]:
         "",
         f"First run including JIT compilation: {compile_and_run:.1f} s (start 1.3, 0.7); "
         "then one fd run to compile the fd path, both left out of the table. "
-        f"Median wall time after compilation (implicit): **{med:.1f} s** (target < 60 s). "
+        f"Median wall time after compilation (implicit): **{med:.1f} s** (tolerance 60 s). "
         f"Whole-run wall time fd / implicit, same starts: "
         f"{', '.join(f'{x:.2f}' for x in ratio)} — the branch continuations between the "
         "steps of the data homotopy (`hopf_orbits`, multipliers from the collocation "
