@@ -225,7 +225,7 @@ def check_input_file(path: str | os.PathLike[str], what: str = "input") -> Path:
     Returns
     -------
     Path
-        ``path``.
+        ``path``, an existing regular file.
 
     Raises
     ------
@@ -270,7 +270,7 @@ def check_output_path(
     Returns
     -------
     Path
-        ``path``.
+        ``path``, writable.
 
     Raises
     ------

@@ -75,6 +75,14 @@ class _Bars:
         self.p.__exit__(*exc)
 
 
+def _measure(description: str, total: int | None, quiet: bool, campaign, *args, **kwargs):
+    """``campaign(*args, **kwargs)`` under the progress bars (``total`` points expected;
+    None: unknown), its warnings silenced (failures are in the result)."""
+    with _Bars(description, total, quiet) as bars, warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        return campaign(*args, on_point=bars.point, on_evaluation=bars.evaluation, **kwargs)
+
+
 def _parse_noise(spec: str | None) -> float | dict[str, float] | None:
     if spec is None:
         return None
@@ -367,24 +375,23 @@ def _ppcbc(
         cut = cli.option_value("--filter-hz", filter_hz, ge=0)
         opts["filter_hz"] = cut if cut > 0 else None  # 0: no filter
     total = continuation or 2 * len(vals)
-    with _Bars(f"PP-CBC {system.name}", total, quiet) as bars, warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        result = ppcbc_campaign(
-            system,
-            param=param,
-            values=vals,
-            span=rng,
-            continuation=continuation,
-            amplitudes=grid,
-            ds=cli.option_value("--ds", ds, 0.5, gt=0),
-            options=opts,
-            noise_fraction=noise_fraction,
-            defaults=dflt,
-            on_point=bars.point,
-            on_evaluation=bars.evaluation,
-            **common,
-        )
-    return result
+    return _measure(
+        f"PP-CBC {system.name}",
+        total,
+        quiet,
+        ppcbc_campaign,
+        system,
+        param=param,
+        values=vals,
+        span=rng,
+        continuation=continuation,
+        amplitudes=grid,
+        ds=cli.option_value("--ds", ds, 0.5, gt=0),
+        options=opts,
+        noise_fraction=noise_fraction,
+        defaults=dflt,
+        **common,
+    )
 
 
 def _forced(
@@ -420,20 +427,19 @@ def _forced(
     if ds is not None:
         opts["ds"] = cli.option_value("--ds", ds, gt=0)
         opts["ds_max"] = max(opts["ds"], 0.1)
-    with _Bars(f"{protocol} {system.name}", None, quiet) as bars, warnings.catch_warnings():
-        warnings.simplefilter("ignore")
-        result = forced_campaign(
-            system,
-            protocol,
-            omega=omega,
-            forcing=forcing,
-            span=rng,
-            options=opts,
-            on_point=bars.point,
-            on_evaluation=bars.evaluation,
-            **common,
-        )
-    return result
+    return _measure(
+        f"{protocol} {system.name}",
+        None,
+        quiet,
+        forced_campaign,
+        system,
+        protocol,
+        omega=omega,
+        forcing=forcing,
+        span=rng,
+        options=opts,
+        **common,
+    )
 
 
 def _truth(system, overrides, protocol, diagram, payload):

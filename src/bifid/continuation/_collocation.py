@@ -223,18 +223,7 @@ def hopf_orbits(
     ends = OrbitEnds(
         first_amplitude=_centred_amplitude(y1, M, n), first_period=TWO_PI / omega, n_states=n
     )
-    stage_of = functools.partial(orbit_stage, system, p, idx)
-    run = run_adaptive(
-        stage_of,
-        y1,
-        t0,
-        policy,
-        options,
-        n,
-        stop=ends.stop,
-        monitor=ends.monitor,
-        progress=progress,
-    )
+    stage_of, run = _continue_orbits(system, p, idx, y1, t0, policy, options, ends, progress)
     run.ys.insert(0, y_h)
     run.meshes.insert(0, M)
     run.tangents.insert(0, t0)
@@ -367,6 +356,17 @@ def periodic_orbits(
         n_states=n,
         from_hopf=False,
     )
+    stage_of, run = _continue_orbits(system, p, idx, y0, t0, policy, options, ends, progress, M0=M)
+    start = SpecialPoint(
+        kind="start", param=lam0, index=0, bracket=(lam0, lam0), solution=y0, data={}
+    )
+    return orbit_branch(system, param, p, run, options, policy, start, stage_of, stability)
+
+
+def _continue_orbits(system, p, idx, y0, t0, policy, options, ends, progress, M0=None):
+    """Follow the orbits in parameter ``idx`` from the corrected orbit ``y0`` along ``t0``
+    (:func:`~bifid.continuation._mesh.run_adaptive`, ended and monitored by the
+    :class:`OrbitEnds` ``ends``); ``(stage_of, run)``."""
     stage_of = functools.partial(orbit_stage, system, p, idx)
     run = run_adaptive(
         stage_of,
@@ -374,16 +374,13 @@ def periodic_orbits(
         t0,
         policy,
         options,
-        n,
-        M0=M,
+        system.n_states,
+        M0=M0,
         stop=ends.stop,
         monitor=ends.monitor,
         progress=progress,
     )
-    start = SpecialPoint(
-        kind="start", param=lam0, index=0, bracket=(lam0, lam0), solution=y0, data={}
-    )
-    return orbit_branch(system, param, p, run, options, policy, start, stage_of, stability)
+    return stage_of, run
 
 
 def _check_stability(stability: str) -> None:

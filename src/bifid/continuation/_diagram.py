@@ -199,23 +199,10 @@ class Diagram:
         }
         out.update(self.info)
         if self.kind == "bifurcation":
-            out["hopf"] = [
-                self._special_json(sp, b) for b in self.branches for sp in b.special("hopf")
-            ]
-            out["folds"] = [
-                self._special_json(sp, b)
-                for b in self.of_kind("equilibrium")
-                for sp in b.special("fold")
-            ]
-            out["cycle_folds"] = [
-                self._special_json(sp, b) for b in self.branches for sp in b.special("cycle_fold")
-            ]
-            out["secondary"] = [
-                self._special_json(sp, b)
-                for b in self.branches
-                for sp in b.special_points
-                if sp.kind in _SECONDARY
-            ]
+            out["hopf"] = self._specials_json(("hopf",))
+            out["folds"] = self._specials_json(("fold",), self.of_kind("equilibrium"))
+            out["cycle_folds"] = self._specials_json(("cycle_fold",))
+            out["secondary"] = self._specials_json(_SECONDARY)
             key = "points" if self.source == "measurement" else "orbits"
             out[key] = [
                 pt for b in self.branches if b.kind != "equilibrium" for pt in self._points_json(b)
@@ -223,15 +210,8 @@ class Diagram:
         else:
             out["points"] = [pt for b in self.branches for pt in self._points_json(b)]
             if self.kind in ("frc", "scurve"):
-                out["folds"] = [
-                    self._special_json(sp, b) for b in self.branches for sp in b.special("fold")
-                ]
-                out["secondary"] = [
-                    self._special_json(sp, b)
-                    for b in self.branches
-                    for sp in b.special_points
-                    if sp.kind in _SECONDARY
-                ]
+                out["folds"] = self._specials_json(("fold",))
+                out["secondary"] = self._specials_json(_SECONDARY)
             if self.kind == "frc":
                 out["peak"] = self._peak_json()
         out["ends"] = [
@@ -267,6 +247,18 @@ class Diagram:
     def _branch_index(self, b: Branch) -> int:
         """Position of ``b`` in ``branches`` (the ``branch`` of ``ends`` and ``candidates``)."""
         return next(i for i, x in enumerate(self.branches) if x is b)
+
+    def _specials_json(
+        self, kinds: tuple[str, ...], branches: list[Branch] | None = None
+    ) -> list[dict[str, Any]]:
+        """The JSON of the special points of ``kinds`` on ``branches`` (default: all), in
+        branch order."""
+        return [
+            self._special_json(sp, b)
+            for b in (self.branches if branches is None else branches)
+            for sp in b.special_points
+            if sp.kind in kinds
+        ]
 
     def _special_json(self, sp: SpecialPoint, b: Branch) -> dict[str, Any]:
         key = "param" if self.kind == "bifurcation" else self.param_key

@@ -365,6 +365,33 @@ def _bisect_branch_point(ctx: BracketContext, i: int) -> tuple[np.ndarray, int, 
     return yb, arc.M, b - a
 
 
+def _report(
+    findings: Findings,
+    ctx: BracketContext,
+    kind: str,
+    bracket: tuple[float, float],
+    i: int,
+    found: tuple[np.ndarray, int, float] | None,
+    why: str,
+    slack: float | None = None,
+) -> None:
+    """Locate and verify the point of ``kind`` detected between points ``i`` and ``i + 1``
+    from ``found = (y, M, precision)``; flag it with ``why`` when it could not be located
+    (``found`` None)."""
+    if found is None:
+        findings.flag(kind, bracket, why)
+        return
+    y, M, prec = found
+    findings.confirm(
+        kind,
+        bracket,
+        lambda: _special(ctx, kind, i, y, M, prec),
+        context=_context(ctx, y, M),
+        index=i,
+        slack=slack,
+    )
+
+
 def find_orbit_special_points(findings: Findings, ctx: BracketContext, params: np.ndarray) -> None:
     """Detect, locate and verify cycle folds, branch points, period doublings and torus
     points along an orbit run; the outcomes go to ``findings``. For forced responses the
@@ -372,41 +399,14 @@ def find_orbit_special_points(findings: Findings, ctx: BracketContext, params: n
     run = ctx.run
     for i, kind, y_e, prec, M in run.events:
         bracket = (params[i], params[i + 1])
-        if kind == "fold" and not ctx.autonomous:
-            continue
-        if kind == "fold":
-            if y_e is None:
-                findings.flag(
-                    "cycle_fold",
-                    bracket,
-                    "the parameter turned between these points but the fold could not be located",
-                )
-                continue
-            findings.confirm(
-                "cycle_fold",
-                bracket,
-                lambda i=i, y=y_e, M=M, prec=prec: _special(ctx, "cycle_fold", i, y, M, prec),
-                context=_context(ctx, y_e, M),
-                index=i,
-                slack=ctx.step(i),
-            )
+        if kind == "fold" and ctx.autonomous:
+            found = None if y_e is None else (y_e, M, prec)
+            why = "the parameter turned between these points but the fold could not be located"
+            _report(findings, ctx, "cycle_fold", bracket, i, found, why, slack=ctx.step(i))
         elif kind == "branch_point":
             found = _bisect_branch_point(ctx, i)
-            if found is None:
-                findings.flag(
-                    "branch_point",
-                    bracket,
-                    "det [G_y; t^T] changed sign but the branch point could not be located",
-                )
-                continue
-            y_b, M_b, prec_b = found
-            findings.confirm(
-                "branch_point",
-                bracket,
-                lambda i=i, y=y_b, M=M_b, p=prec_b: _special(ctx, "branch_point", i, y, M, p),
-                context=_context(ctx, y_b, M_b),
-                index=i,
-            )
+            why = "det [G_y; t^T] changed sign but the branch point could not be located"
+            _report(findings, ctx, "branch_point", bracket, i, found, why)
     fl = ctx.floquet
     valid = fl.ok & ~ctx.zero
     turned = {i for i, kind, *_ in run.events}
@@ -423,21 +423,5 @@ def find_orbit_special_points(findings: Findings, ctx: BracketContext, params: n
         for kind, changed, test in tests:
             if not changed:
                 continue
-            bracket = (params[i], params[i + 1])
-            found = _secant(ctx, i, test)
-            if found is None:
-                findings.flag(
-                    kind,
-                    bracket,
-                    "a multiplier crossed the unit circle here but "
-                    "the crossing could not be located",
-                )
-                continue
-            y_s, M_s, prec_s = found
-            findings.confirm(
-                kind,
-                bracket,
-                lambda i=i, y=y_s, M=M_s, p=prec_s, k=kind: _special(ctx, k, i, y, M, p),
-                context=_context(ctx, y_s, M_s),
-                index=i,
-            )
+            why = "a multiplier crossed the unit circle here but the crossing could not be located"
+            _report(findings, ctx, kind, (params[i], params[i + 1]), i, _secant(ctx, i, test), why)

@@ -271,36 +271,30 @@ def _record(kind: str, rid: str, g: dict[str, Any], rwhere: str) -> LCORecord | 
     sig = np.array(g["sig"])
     extra: dict[str, Any] = {"record_id": rid}
     per_sample = {k: (np.array(g[k]) if k in g else None) for k in _SAMPLE_COLS}
+    common: dict[str, Any] = {
+        "signals": sig,
+        "sample_rate": rate,
+        "stable": stable,
+        "control": per_sample["control"],
+        "target": per_sample["target"],
+        "extra": extra,
+    }
     try:
         if kind == "lco":
             freq = c.get("frequency", math.nan)
             if math.isnan(freq):
                 freq = estimate_frequency(sig[:, 0], rate)
                 extra["frequency_estimated"] = 1.0
-            return LCORecord(
-                param=c["param"],
-                signals=sig,
-                sample_rate=rate,
-                stable=stable,
-                control=per_sample["control"],
-                target=per_sample["target"],
-                frequency=freq,
-                extra=extra,
-            )
+            return LCORecord(param=c["param"], frequency=freq, **common)
         curve = c.get("curve", 0.0)
         if not math.isfinite(curve) or curve != int(curve):
             raise BifidInputError(f"curve must be an integer, got {curve!r}.")
         return ForcedRecord(
             omega=c["omega"],
             forcing=c["forcing"],
-            signals=sig,
-            sample_rate=rate,
-            stable=stable,
             force=per_sample["force"],
-            control=per_sample["control"],
-            target=per_sample["target"],
             curve=int(curve),
-            extra=extra,
+            **common,
             amplitude=None if math.isnan(c.get("amplitude", math.nan)) else c["amplitude"],
             phase=None if math.isnan(c.get("phase", math.nan)) else c["phase"],
         )

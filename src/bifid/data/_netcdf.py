@@ -188,6 +188,27 @@ def _attrs(
     return out
 
 
+def _assemble(
+    kind: str,
+    data: dict[str, Any],
+    recs: Sequence[LCORecord | ForcedRecord],
+    names: list[str],
+    attrs: dict[str, Any],
+    own: Mapping[str, str],
+) -> xr.Dataset:
+    """The validated dataset of ``kind``: the variables ``data`` and the records' extras on
+    the ``record`` and ``signal`` coordinates, with ``attrs`` (:func:`_attrs`) and the
+    builder's ``own`` attributes."""
+    data.update(_extras(recs))
+    ds = xr.Dataset(
+        data,
+        coords={"record": np.arange(len(recs)), "signal": np.array(names, dtype=object)},
+        attrs=attrs,
+    )
+    ds.attrs.update(own)
+    return validate_dataset(ds, f"{kind}_dataset")
+
+
 def _check_records(records: Iterable[Any], cls: type) -> list[Any]:
     recs = list(records)
     if not recs:
@@ -261,15 +282,10 @@ def lco_dataset(
         np.stack([r.amplitude for r in recs]),
         {"long_name": "max_t |x(t)| of the centred signals"},
     )
-    data.update(_extras(recs))
-    ds = xr.Dataset(
-        data,
-        coords={"record": np.arange(len(recs)), "signal": np.array(names, dtype=object)},
-        attrs=_attrs("lco", system, settings, source, units, attrs),
+    own = {"param_name": str(param_name), "param_units": str(param_units)}
+    return _assemble(
+        "lco", data, recs, names, _attrs("lco", system, settings, source, units, attrs), own
     )
-    ds.attrs["param_name"] = str(param_name)
-    ds.attrs["param_units"] = str(param_units)
-    return validate_dataset(ds, "lco_dataset")
 
 
 def forced_dataset(
@@ -348,15 +364,10 @@ def forced_dataset(
         np.array([r.curve for r in recs], dtype=np.int64),
         {"long_name": "id of the curve (S-curve, FRC, backbone) of each point"},
     )
-    data.update(_extras(recs))
-    ds = xr.Dataset(
-        data,
-        coords={"record": np.arange(len(recs)), "signal": np.array(names, dtype=object)},
-        attrs=_attrs("forced", system, settings, source, units, attrs),
+    own = {"observed": observed, "forcing_units": str(forcing_units)}
+    return _assemble(
+        "forced", data, recs, names, _attrs("forced", system, settings, source, units, attrs), own
     )
-    ds.attrs["observed"] = observed
-    ds.attrs["forcing_units"] = str(forcing_units)
-    return validate_dataset(ds, "forced_dataset")
 
 
 # ---------------------------------------------------------------------------------------------

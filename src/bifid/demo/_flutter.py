@@ -25,10 +25,10 @@ from typing import Any
 
 import numpy as np
 
-from bifid.demo._cache import StageCache, settings_key
+from bifid.demo._cache import settings_key
 from bifid.demo._checks import FLUTTER_CHECKS as CHECKS
-from bifid.demo._progress import Stages
 from bifid.demo._report_common import check
+from bifid.demo._runner import DemoRun, PointCounter, run_demo
 from bifid.errors import ConvergenceError, ConvergenceWarning
 
 __all__ = ["FlutterDemoSettings", "run_flutter_demo"]
@@ -88,128 +88,110 @@ def run_flutter_demo(
     refresh: bool = False,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Run (or reuse) every stage and write ``out/report.html``; returns the summary.
+    """Run (or reuse) the truth, campaign, model, mechanistic and comparison stages of the
+    flutter demo and write ``out/report.html``; returns the summary.
 
-    BLAS runs on one thread throughout: the stages factorise small matrices thousands
-    of times, which a thread pool slows down many times on a loaded machine.
+    Stages whose settings did not change are reused (``refresh``: run them all again).
+    BLAS runs on one thread throughout: the stages factorise small matrices thousands of
+    times, which a thread pool slows down many times on a loaded machine.
     """
-    from bifid.continuation._blas import one_blas_thread  # bifid.continuation: slow to import
+    cfg = settings or FlutterDemoSettings()
+    mech = ["mechanistic"] if cfg.mechanistic else []
+    stages = ["truth", "campaign", "model", *mech, "compare"]
+    return run_demo(out, stages, lambda run: _run(run, cfg), refresh=refresh, progress=progress)
 
-    with one_blas_thread():
-        return _run(out, settings or FlutterDemoSettings(), refresh=refresh, progress=progress)
 
+def _run(run: DemoRun, cfg: FlutterDemoSettings) -> dict[str, Any]:
+    from bifid.demo._truth import flutter_truth
 
-def _run(out: Path, cfg: FlutterDemoSettings, *, refresh: bool, progress: bool) -> dict[str, Any]:
-    from bifid.demo._truth import flutter_truth, load_truth
-
-    out.mkdir(parents=True, exist_ok=True)
-    cache = StageCache(out, refresh=refresh)
+    out, cache, bar, timings = run.out, run.cache, run.bar, run.timings
     st = cfg.stage_settings()
-    t_all = time.perf_counter()
     keys = {"truth": settings_key(st["truth"])}
     # the campaign uses the truth only for its noise levels (branch amplitudes over the range)
     keys["campaign"] = settings_key({**st["campaign"], "truth_range": cfg.truth_range})
     keys["model"] = settings_key({**st["model"], "campaign": keys["campaign"]})
     keys["mechanistic"] = settings_key({**st["mechanistic"], "campaign": keys["campaign"]})
-    timings: dict[str, float] = {}
-    stages = [
-        "truth",
-        "campaign",
-        "model",
-        *(["mechanistic"] if cfg.mechanistic else []),
-        "compare",
-    ]
 
-    with Stages(stages, enabled=progress) as bar:
-        # 1. ground truth
-        bar.start("truth", "continuation of the true model")
-        timings["truth"] = cache.ensure(
-            "truth",
-            keys["truth"],
-            ["truth.json", "truth.npz"],
-            lambda: (
-                flutter_truth(out, cfg.truth_range, cfg.test_points, measured_speeds=cfg.speeds)
-                and None
-            ),
-        )
-        truth, tarr = load_truth(out)
+    # 1. ground truth
+    truth, tarr = run.truth(
+        keys["truth"],
+        lambda: flutter_truth(out, cfg.truth_range, cfg.test_points, measured_speeds=cfg.speeds),
+    )
 
-        # 2. virtual experiment
-        bar.start("campaign", "virtual PP-CBC experiment")
+    # 2. virtual experiment
+    bar.start("campaign", "virtual PP-CBC experiment")
 
-        def campaign() -> dict[str, Any]:
-            noise = _noise_levels(tarr, cfg)
-            n, fails = _campaign(out / "dataset.nc", cfg, noise, bar)
-            return {"noise": noise, "n_points": n, "failures": fails}
+    def campaign() -> dict[str, Any]:
+        noise = _noise_levels(tarr, cfg)
+        n, fails = _campaign(out / "dataset.nc", cfg, noise, bar)
+        return {"noise": noise, "n_points": n, "failures": fails}
 
-        timings["campaign"], data = cache.dataset(keys["campaign"], campaign)
+    timings["campaign"], data = cache.dataset(keys["campaign"], campaign)
 
-        # 3. identification
-        bar.start("model", "training the hybrid model")
-        from bifid.identify.hopf_hybrid import HopfHybridModel
+    # 3. identification
+    bar.start("model", "training the hybrid model")
+    from bifid.identify.hopf_hybrid import HopfHybridModel
 
-        timings["model"], model = cache.model(
-            keys["model"],
-            HopfHybridModel,
-            cfg.model,
-            data,
-            {"demo": "flutter", **st["model"]},
-            fit_options={"uncertainty": st["model"]["uncertainty"]},
+    timings["model"], model = cache.model(
+        keys["model"],
+        HopfHybridModel,
+        cfg.model,
+        data,
+        {"demo": "flutter", **st["model"]},
+        fit_options={"uncertainty": st["model"]["uncertainty"]},
+    )
+
+    # 3b. mechanistic identification of the same data (thesis ch. 4)
+    mech = None
+    if cfg.mechanistic:
+        from bifid.demo._mechanistic import (
+            fit_mechanistic,
+            load_mechanistic,
+            write_mechanistic_failure,
         )
 
-        # 3b. mechanistic identification of the same data (thesis ch. 4)
-        mech = None
-        if cfg.mechanistic:
-            from bifid.demo._mechanistic import (
-                fit_mechanistic,
-                load_mechanistic,
-                write_mechanistic_failure,
-            )
+        bar.start("mechanistic", "whole-diagram update of k_a2, k_a3")
 
-            bar.start("mechanistic", "whole-diagram update of k_a2, k_a3")
+        def mechanistic() -> None:
+            try:
+                fit_mechanistic(out, data, cfg.mechanistic_start)
+            except ConvergenceError as exc:
+                # reported in the summary and the report, never hidden; the demo goes on
+                write_mechanistic_failure(out, str(exc))
 
-            def mechanistic() -> None:
-                try:
-                    fit_mechanistic(out, data, cfg.mechanistic_start)
-                except ConvergenceError as exc:
-                    # reported in the summary and the report, never hidden; the demo goes on
-                    write_mechanistic_failure(out, str(exc))
+        timings["mechanistic"] = cache.ensure(
+            "mechanistic",
+            keys["mechanistic"],
+            ["mechanistic.json", "mechanistic.npz"],
+            mechanistic,
+        )
+        mech = load_mechanistic(out, truth)
 
-            timings["mechanistic"] = cache.ensure(
-                "mechanistic",
-                keys["mechanistic"],
-                ["mechanistic.json", "mechanistic.npz"],
-                mechanistic,
-            )
-            mech = load_mechanistic(out, truth)
+    # 4. comparison, figures, report
+    bar.start("compare", "predictions, figures, report")
+    t0 = time.perf_counter()
+    from bifid.demo._flutter_report import compare, write_report
 
-        # 4. comparison, figures, report
-        bar.start("compare", "predictions, figures, report")
-        t0 = time.perf_counter()
-        from bifid.demo._flutter_report import compare, write_report
-
-        errors = compare(model, truth, tarr, cfg.level)
-        if mech is not None:
-            errors["checks"].update(_mechanistic_checks(mech["summary"]))
-        timings["compare"] = time.perf_counter() - t0
-        summary = {
-            "system": "flutter",
-            "stages_reused": list(cache.reused),
-            "campaign": _campaign_summary(data, cache.info("campaign")),
-            "truth": {
-                "hopf_U": truth["hopf"]["U"],
-                "fold_U": truth["fold"]["U"] if truth["fold"] else None,
-            },
-            "prediction": errors["prediction"],
-            "errors": errors["errors"],
-            "checks": errors["checks"],
-            "mechanistic": mech["summary"] if mech else None,
-            "timings_s": timings,
-        }
-        run_time = time.perf_counter() - t_all
-        write_report(out, summary, model, data, truth, tarr, errors, cfg, mech, run_time=run_time)
-        summary["wall_time_s"] = time.perf_counter() - t_all
-        summary["files"] = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
+    errors = compare(model, truth, tarr, cfg.level)
+    if mech is not None:
+        errors["checks"].update(_mechanistic_checks(mech["summary"]))
+    timings["compare"] = time.perf_counter() - t0
+    summary = {
+        "system": "flutter",
+        "stages_reused": list(cache.reused),
+        "campaign": _campaign_summary(data, cache.info("campaign")),
+        "truth": {
+            "hopf_U": truth["hopf"]["U"],
+            "fold_U": truth["fold"]["U"] if truth["fold"] else None,
+        },
+        "prediction": errors["prediction"],
+        "errors": errors["errors"],
+        "checks": errors["checks"],
+        "mechanistic": mech["summary"] if mech else None,
+        "timings_s": timings,
+    }
+    run_time = run.elapsed()
+    write_report(out, summary, model, data, truth, tarr, errors, cfg, mech, run_time=run_time)
     return summary
 
 
@@ -239,13 +221,11 @@ def _campaign(path: Path, cfg: FlutterDemoSettings, noise: dict[str, float], bar
     written to ``path`` as soon as it converges."""
     from bifid.cbc import ppcbc_campaign
 
-    if path.exists():
-        path.unlink()  # a campaign with other settings: start afresh
-    count = [0]
-
-    def on_point(pt) -> None:
-        count[0] += 1
-        bar.note(f"U={pt.param:.4g} m/s {'stable' if pt.stable else 'unstable'}: {count[0]} LCOs")
+    on_point = PointCounter(
+        path,
+        bar,
+        lambda pt, n: f"U={pt.param:.4g} m/s {'stable' if pt.stable else 'unstable'}: {n} LCOs",
+    )
 
     with warnings.catch_warnings():
         # each failure is also returned, recorded in the manifest and listed in the report
@@ -260,9 +240,9 @@ def _campaign(path: Path, cfg: FlutterDemoSettings, noise: dict[str, float], bar
             out=path,
             on_point=on_point,
         )
-    if count[0] == 0:
+    if on_point.count == 0:
         raise ConvergenceError("the virtual PP-CBC campaign converged no LCO at all.")
-    return count[0], [f.to_json() for f in result.failures]
+    return on_point.count, [f.to_json() for f in result.failures]
 
 
 def _campaign_summary(data, info: dict[str, Any]) -> dict[str, Any]:

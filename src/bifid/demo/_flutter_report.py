@@ -178,25 +178,11 @@ def diagram_figure(pred: dict[str, Any], data, truth, tarr, path: Path, mech=Non
             else data["amplitude"].sel(signal=s).values
         )
         lab = data["stable"].values
-        ax.plot(
-            U[lab == 1],
-            amp[lab == 1],
-            "o",
-            color="tab:blue",
-            mec="k",
-            ms=7,
-            label="measured (stable)",
-        )
-        ax.plot(
-            U[lab == 0],
-            amp[lab == 0],
-            "o",
-            mfc="white",
-            mec="tab:red",
-            mew=1.8,
-            ms=7,
-            label="measured (unstable)",
-        )
+        for code, style in (
+            (1, {"color": "tab:blue", "mec": "k", "label": "measured (stable)"}),
+            (0, {"mfc": "white", "mec": "tab:red", "mew": 1.8, "label": "measured (unstable)"}),
+        ):
+            ax.plot(U[lab == code], amp[lab == code], "o", ms=7, **style)
         ax.plot(truth["hopf"]["U"], 0, "k^", ms=8)
         ax.plot(
             pred["hopf"][0]["param"] if pred["hopf"] else np.nan,

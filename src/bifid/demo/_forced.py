@@ -14,7 +14,6 @@
 from __future__ import annotations
 
 import math
-import time
 import warnings
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -22,8 +21,8 @@ from typing import Any
 
 import numpy as np
 
-from bifid.demo._cache import StageCache, settings_key
-from bifid.demo._progress import Stages
+from bifid.demo._cache import settings_key
+from bifid.demo._runner import DemoRun, PointCounter, run_demo
 from bifid.errors import ConvergenceError, ConvergenceWarning
 
 __all__ = ["ForcedDemoSettings", "run_forced_demo"]
@@ -67,113 +66,97 @@ def run_forced_demo(
     refresh: bool = False,
     progress: bool = True,
 ) -> dict[str, Any]:
-    """Run (or reuse) every stage and write ``out/report.html``; returns the summary.
-
-    BLAS runs on one thread throughout: the stages factorise small matrices thousands
-    of times, which a thread pool slows down many times on a loaded machine.
-    """
-    from bifid.continuation._blas import one_blas_thread  # bifid.continuation: slow to import
-
-    with one_blas_thread():
-        return _run(out, settings or ForcedDemoSettings(), refresh=refresh, progress=progress)
+    """Run (or reuse) the truth, campaign, model and comparison stages of the forced demo
+    and write ``out/report.html``; returns the summary (reuse and BLAS threads as in
+    :func:`~bifid.demo.run_flutter_demo`)."""
+    cfg = settings or ForcedDemoSettings()
+    stages = ["truth", "campaign", "model", "compare"]
+    return run_demo(out, stages, lambda run: _run(run, cfg), refresh=refresh, progress=progress)
 
 
-def _run(out: Path, cfg: ForcedDemoSettings, *, refresh: bool, progress: bool) -> dict[str, Any]:
-    from bifid.demo._truth import forced_truth, load_truth
+def _run(run: DemoRun, cfg: ForcedDemoSettings) -> dict[str, Any]:
+    from bifid.demo._truth import forced_truth
 
-    out.mkdir(parents=True, exist_ok=True)
-    cache = StageCache(out, refresh=refresh)
+    out, cache, bar, timings = run.out, run.cache, run.bar, run.timings
     st = cfg.stage_settings()
-    t_all = time.perf_counter()
     keys = {"truth": settings_key(st["truth"])}
     keys["campaign"] = settings_key(st["campaign"])
     keys["model"] = settings_key({**st["model"], "campaign": keys["campaign"]})
     keys["compare"] = settings_key(
         {"omega_range": cfg.omega_range, "truth": keys["truth"], "model": keys["model"]}
     )
-    timings: dict[str, float] = {}
-    with Stages(["truth", "campaign", "model", "compare"], enabled=progress) as bar:
-        bar.start("truth", "continuation of the true model")
-        timings["truth"] = cache.ensure(
-            "truth",
-            keys["truth"],
-            ["truth.json", "truth.npz"],
-            lambda: (
-                forced_truth(
-                    out,
-                    cfg.test_forcings,
-                    cfg.omega_range,
-                    cfg.backbone_range,
-                    cfg.omegas,
-                    (0.0, cfg.forcing_range[1]),
-                )
-                and None
-            ),
-        )
-        truth, tarr = load_truth(out)
-
-        bar.start("campaign", "virtual CBC S-curves")
-
-        def campaign() -> dict[str, Any]:
-            # noise relative to the smallest response measured (the S-curves' start)
-            noise = cfg.noise_fraction * float(np.min(tarr["frc0_amplitude"]))
-            n, fails = _campaign(out / "dataset.nc", cfg, noise, bar)
-            return {"noise": noise, "n_points": n, "failures": fails}
-
-        timings["campaign"], data = cache.dataset(keys["campaign"], campaign)
-
-        bar.start("model", "fitting the kernel model")
-        from bifid.identify.forced_kernel import ForcedKernelModel
-
-        timings["model"], model = cache.model(
-            keys["model"], ForcedKernelModel, cfg.model, data, {"demo": "forced", **st["model"]}
-        )
-
-        bar.start("compare", "predictions, figures, report")
-        from bifid.demo._forced_report import (
-            compare,
-            load_comparison,
-            save_comparison,
-            write_report,
-        )
-
-        timings["compare"] = cache.ensure(
-            "compare",
-            keys["compare"],
-            ["comparison.json", *cache.info("compare").get("files", [])],
-            lambda: save_comparison(out, compare(model, truth, tarr, cfg)),
-        )
-        result = load_comparison(out)
-        info = cache.info("campaign")
-        summary = {
-            "system": "shaw_pierre",
-            "stages_reused": list(cache.reused),
-            "campaign": {
-                "n_points": int(data.sizes["record"]),
-                "n_curves": len(np.unique(data["curve"].values)),
-                "omegas": list(cfg.omegas),
-                "noise": info.get("noise"),
-                "failures": len(info.get("failures", []) or []),
-                "seconds": info.get("seconds", math.nan),
-            },
-            "prediction": result["prediction"],
-            "errors": result["errors"],
-            "checks": result["checks"],
-            "timings_s": timings,
-        }
-        write_report(
+    truth, tarr = run.truth(
+        keys["truth"],
+        lambda: forced_truth(
             out,
-            summary,
-            model,
-            data,
-            truth,
-            tarr,
-            result,
-            cfg,
-            run_time=time.perf_counter() - t_all,
-        )
-        summary["wall_time_s"] = time.perf_counter() - t_all
-        summary["files"] = sorted(p.name for p in out.iterdir() if not p.name.startswith("."))
+            cfg.test_forcings,
+            cfg.omega_range,
+            cfg.backbone_range,
+            cfg.omegas,
+            (0.0, cfg.forcing_range[1]),
+        ),
+    )
+
+    bar.start("campaign", "virtual CBC S-curves")
+
+    def campaign() -> dict[str, Any]:
+        # noise relative to the smallest response measured (the S-curves' start)
+        noise = cfg.noise_fraction * float(np.min(tarr["frc0_amplitude"]))
+        n, fails = _campaign(out / "dataset.nc", cfg, noise, bar)
+        return {"noise": noise, "n_points": n, "failures": fails}
+
+    timings["campaign"], data = cache.dataset(keys["campaign"], campaign)
+
+    bar.start("model", "fitting the kernel model")
+    from bifid.identify.forced_kernel import ForcedKernelModel
+
+    timings["model"], model = cache.model(
+        keys["model"], ForcedKernelModel, cfg.model, data, {"demo": "forced", **st["model"]}
+    )
+
+    bar.start("compare", "predictions, figures, report")
+    from bifid.demo._forced_report import (
+        compare,
+        load_comparison,
+        save_comparison,
+        write_report,
+    )
+
+    timings["compare"] = cache.ensure(
+        "compare",
+        keys["compare"],
+        ["comparison.json", *cache.info("compare").get("files", [])],
+        lambda: save_comparison(out, compare(model, truth, tarr, cfg)),
+    )
+    result = load_comparison(out)
+    info = cache.info("campaign")
+    summary = {
+        "system": "shaw_pierre",
+        "stages_reused": list(cache.reused),
+        "campaign": {
+            "n_points": int(data.sizes["record"]),
+            "n_curves": len(np.unique(data["curve"].values)),
+            "omegas": list(cfg.omegas),
+            "noise": info.get("noise"),
+            "failures": len(info.get("failures", []) or []),
+            "seconds": info.get("seconds", math.nan),
+        },
+        "prediction": result["prediction"],
+        "errors": result["errors"],
+        "checks": result["checks"],
+        "timings_s": timings,
+    }
+    write_report(
+        out,
+        summary,
+        model,
+        data,
+        truth,
+        tarr,
+        result,
+        cfg,
+        run_time=run.elapsed(),
+    )
     return summary
 
 
@@ -183,13 +166,7 @@ def _campaign(path: Path, cfg: ForcedDemoSettings, noise: float, bar) -> tuple[i
     from bifid.cbc import forced_campaign
     from bifid.data import combine_datasets, save_dataset
 
-    if path.exists():
-        path.unlink()  # a campaign with other settings: start afresh
-    count = [0]
-
-    def on_point(pt) -> None:
-        count[0] += 1
-        bar.note(f"Ω={pt.omega:.4g}: {count[0]} points")
+    on_point = PointCounter(path, bar, lambda pt, n: f"Ω={pt.omega:.4g}: {n} points")
 
     datasets, failures = [], []
     with warnings.catch_warnings():
@@ -208,7 +185,7 @@ def _campaign(path: Path, cfg: ForcedDemoSettings, noise: float, bar) -> tuple[i
             failures += [f.to_json() for f in result.failures]
             if result.dataset is not None:
                 datasets.append(result.dataset)
-    if count[0] == 0:
+    if on_point.count == 0:
         raise ConvergenceError("the virtual CBC campaign converged no point at all.")
     save_dataset(combine_datasets(datasets), path)
-    return count[0], failures
+    return on_point.count, failures
