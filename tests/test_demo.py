@@ -5,6 +5,8 @@ The whole demo runs in ``tests/slow/test_demo_e2e.py`` (``--runslow``) and in ``
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import pytest
 
@@ -102,3 +104,31 @@ def test_stage_cache_ensure_builds_once_and_records(tmp_path):
     assert calls == [1] and c.reused == ["s"] and c.info("s")["n_points"] == 7
     StageCache(tmp_path).ensure("s", "k2", ["out.txt"], build)  # new settings: rebuilt
     assert calls == [1, 1]
+
+
+def test_cached_model_without_the_asked_intervals_is_fitted_again(tmp_path) -> None:
+    """A saved model that loads without calibrated intervals although the stage asked for
+    them (saved by a version whose intervals this one does not read) is refitted."""
+    fits: list[bool] = []
+
+    class Estimator:
+        def __init__(self, calibrated: bool = True) -> None:
+            self.calibrated = calibrated
+
+        def fit(self, data, uncertainty: bool = False):
+            fits.append(uncertainty)
+            return self
+
+        def save(self, path, settings) -> None:
+            path.mkdir(exist_ok=True)
+            (path / "model.json").write_text(json.dumps({"calibrated": len(fits) > 1}))
+
+        @classmethod
+        def load(cls, path):
+            return cls(json.loads((path / "model.json").read_text())["calibrated"])
+
+    cache = StageCache(tmp_path)
+    _, model = cache.model("k", Estimator, {}, None, {}, fit_options={"uncertainty": True})
+    assert fits == [True, True] and model.calibrated  # the first save was not calibrated
+    _, model = StageCache(tmp_path).model("k", Estimator, {}, None, {}, {"uncertainty": True})
+    assert fits == [True, True] and model.calibrated  # now reused as it is

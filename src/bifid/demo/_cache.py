@@ -120,11 +120,20 @@ class StageCache:
         fit_options: Mapping[str, Any] | None = None,
     ) -> tuple[float, Any]:
         """The ``model`` stage: ``estimator(**hyper).fit(data, **fit_options)`` saved in
-        ``model/`` unless it is fresh; the seconds spent and the loaded model."""
+        ``model/`` unless it is fresh; the seconds spent and the loaded model. A saved model
+        fitted with ``uncertainty=True`` that has no calibrated intervals when loaded (saved
+        by a version whose intervals this one does not read) is fitted again."""
 
         def fit() -> None:
             model = estimator(**hyper).fit(data, **dict(fit_options or {}))
             model.save(self.directory / "model", settings=settings)
 
         seconds = self.ensure("model", key, ["model/model.json"], fit)
-        return seconds, estimator.load(self.directory / "model")
+        model = estimator.load(self.directory / "model")
+        if dict(fit_options or {}).get("uncertainty") and not getattr(model, "calibrated", True):
+            t0 = time.perf_counter()
+            fit()
+            self.done("model", key, time.perf_counter() - t0)
+            self.reused = [s for s in self.reused if s != "model"]
+            return seconds + time.perf_counter() - t0, estimator.load(self.directory / "model")
+        return seconds, model
