@@ -82,6 +82,28 @@ def test_subcritical_pair_with_noise(hopf):
     assert pts[1].amplitude["u1"] == pytest.approx(r_s, rel=0.03)
 
 
+@pytest.mark.parametrize("mu, kp", [(-0.0025, 3.0), (-0.01, 1.0)])
+def test_near_hopf_lco_with_noise_is_accurate_or_refused(hopf, mu, kp):
+    """Check a small LCO near the Hopf point with 1 % noise: its control error is flat in
+    A* (slope of order |μ|/kp: the response follows the target), so the noise moves the
+    zero by percent. Every point is within 1 % of r = √-μ, or the LCO is refused as noise-limited
+    (at μ = -0.0025 with kp = 3, where the measured zero scatters by ±1.5 %); the one
+    farther from the Hopf point (μ = -0.01, kp = 1) is measured."""
+    r = math.sqrt(-mu)
+    for seed in (1, 2):
+        rig = VirtualRig(hopf, {"mu": mu, "q5": 0.0}, sample_rate=100.0, noise=0.01 * r, seed=seed)
+        opts = PPCBCOptions(
+            target="polar", **{**OPTS, "kp": kp, "measure_periods": 4.0, "stability": False}
+        )
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", ConvergenceWarning)
+            pts, fails = ppcbc_scan(rig, "mu", mu, np.linspace(0.6 * r, 1.5 * r, 4), opts)
+        assert all(abs(p.amplitude["u1"] / r - 1.0) <= 0.01 for p in pts)
+        assert pts or any("standard error" in f.reason for f in fails)
+        if mu == -0.01:
+            assert len(pts) == 1
+
+
 def test_campaign_continues_round_the_fold(tmp_path):
     """Check a continuation campaign (scan, then the measured zero problem on the
     continuation driver) through the cycle fold.

@@ -105,6 +105,14 @@ class PPCBCOptions(ProtocolOptions):
         measured amplitude by several times the floor.
     max_extension : float
         Longest record of a converged point, in multiples of ``measure_periods``.
+    zero_precision : float
+        Largest standard error of the converged ``a0*`` relative to ``a0*``: the noise of
+        ``G`` carried through the Jacobian (``[G_y; e_λ]⁻¹``, eq. 3.24 at fixed ``λ``).
+        Near a Hopf point the response follows the target, ``G`` is flat in ``a0*`` and
+        a floor far below ``precision`` still moves the zero by percent: while this is
+        larger the record is extended as for ``precision``; a point still above it at
+        the longest record is a failure (noise-limited), in the amplitude scan's secant
+        too (its floor over its slope).
     centre : (float, float)
         Where the bootstrap's first target is centred in ``(x1, x2)``: the rig's rest
         position (the system's equilibrium).
@@ -133,6 +141,7 @@ class PPCBCOptions(ProtocolOptions):
     max_turn: float = 20.0
     precision: float = 2e-4
     max_extension: float = 8.0
+    zero_precision: float = 4e-3
     centre: tuple[float, float] = (0.0, 0.0)
 
     def __post_init__(self) -> None:
@@ -149,6 +158,7 @@ class PPCBCOptions(ProtocolOptions):
                 "max_invasiveness",
                 "precision",
                 "max_extension",
+                "zero_precision",
             ),
             ("picard_max", "secant_max", "newton_max"),
         )
@@ -347,13 +357,42 @@ class PPCBCProblem(MeasuredProblem):
     def _periods(self, resp: Response) -> float:
         return len(resp.m) * resp.omega / (2.0 * math.pi * resp.m.sample_rate)
 
+    def zero_noise(self, ev: Evaluation) -> float:
+        """Standard error of the zero's ``a0*`` relative to ``a0*``: the noise of ``G``
+        (its floors) carried through the corrector's Jacobian at fixed ``λ`` (0 without
+        a Jacobian)."""
+        J = self.jacobian
+        if J is None or J.shape != (self.n, self.n + 1):
+            return 0.0
+        e_p = np.zeros((1, self.n + 1))
+        e_p[0, -1] = 1.0
+        with np.errstate(all="ignore"):
+            try:
+                inv_row = np.linalg.solve(np.vstack([J, e_p]).T, np.eye(self.n + 1)[0])
+            except np.linalg.LinAlgError:
+                return math.inf
+        # (floors are 3σ; the components' noises independent)
+        noise = float(np.linalg.norm(inv_row[: self.n] * ev.floor)) / 3.0
+        return noise / max(abs(float(ev.y[0])), 1e-300) if math.isfinite(noise) else math.inf
+
     def precise(self, ev: Evaluation) -> bool:
-        """The floor is below ``precision`` (of ``a0*``), or the record at its longest."""
+        """The floor is below ``precision`` (of ``a0*``) and the zero's noise below
+        ``zero_precision`` (:meth:`zero_noise`); at the longest record the floor passes,
+        the zero's noise must (else the point is noise-limited)."""
         resp: Response = ev.info
         longest = self.opts.max_extension * self.opts.measure_periods
+        zero_ok = self.zero_noise(ev) <= self.opts.zero_precision
+        if self._periods(resp) >= longest - 0.5:
+            return zero_ok
+        return zero_ok and resp.floor <= self.opts.precision * abs(float(ev.y[0]))
+
+    def imprecision(self, ev: Evaluation) -> str:
         return (
-            resp.floor <= self.opts.precision * abs(float(ev.y[0]))
-            or self._periods(resp) >= longest - 0.5
+            f"the zero's a0* has a standard error of {100 * self.zero_noise(ev):.2g} % (noise "
+            f"carried through the Jacobian; limit {100 * self.opts.zero_precision:g} "
+            f"%) at the longest record ({self.opts.max_extension:g} x measure_periods): the "
+            "control error is too flat in the target's amplitude here (near a Hopf point) "
+            "for the measurement noise"
         )
 
     def extend(self, ev: Evaluation) -> Evaluation | None:

@@ -28,7 +28,13 @@ from typing import Any
 import numpy as np
 
 from bifid.cbc._controllers import PolarTarget
-from bifid.cbc._measured import BroydenCorrector, Evaluation, Failure, RigTripped
+from bifid.cbc._measured import (
+    BroydenCorrector,
+    Evaluation,
+    Failure,
+    NoiseLimited,
+    RigTripped,
+)
 from bifid.cbc._ppcbc import Invasive, LCOPoint, PPCBCOptions, PPCBCProblem, make_point
 from bifid.cbc._ppcbc_family import Response, TargetFamily, bootstrap
 from bifid.cbc._rig import AbstractRig
@@ -94,11 +100,14 @@ class _Scanner:
         self.vec = self.family.convert(self.vec, new)
         self.family = new
 
-    def __call__(self, a_star: float, sign_only: bool = False) -> _Eval:
+    def __call__(
+        self, a_star: float, sign_only: bool = False, shape_tol: float | None = None
+    ) -> _Eval:
         """``Ξ(A*)`` with the target shape converged by (accelerated) Picard.
 
         ``sign_only`` (grid points): stop as soon as the shape error is small against
-        ``|Ξ|`` -- only the sign is needed to bracket zeros.
+        ``|Ξ|`` -- only the sign is needed to bracket zeros. ``shape_tol``: relative
+        tolerance on the shape's control error (default: the options' ``tol``).
         """
         vec = self.vec.copy()
         vec[0] = a_star
@@ -116,7 +125,8 @@ class _Scanner:
             self.last = resp
             # the shape's control error (target minus response), in units of A*
             err = float(np.max(np.abs(resp.vector - vec)[1:] * fam.scales(vec)[1:]))
-            tol = self.o.tol * a_star + resp.floor
+            rel = self.o.tol if shape_tol is None else shape_tol
+            tol = rel * a_star + resp.floor
             new = acc.step(vec, resp.vector, resp.floor) if acc is not None else resp.vector
             if err <= tol:
                 ok = True
@@ -130,17 +140,26 @@ class _Scanner:
 
 
 def _illinois(
-    f: Callable[[float], _Eval], a: _Eval, b: _Eval, rel_tol: float, max_iter: int
+    f: Callable[[float], _Eval],
+    a: _Eval,
+    b: _Eval,
+    rel_tol: float,
+    max_iter: int,
+    slope_ref: float = math.inf,
+    noise_tol: float = math.inf,
 ) -> _Eval | None:
     """Root of ``Ξ`` between evaluations ``a`` and ``b`` (opposite signs).
 
     Converged when the error estimate of ``A*`` is below ``rel_tol · A*`` (plus what the
     noise floor of ``Ξ`` allows) and ``|Ξ|`` itself is (a sign change of ``Ξ`` can be a
     jump between attractors, not a zero): the error estimate is the larger of
-    ``|Ξ| / |Ξ'|`` (with the secant slope ``Ξ'`` of the bracket) and the next secant
-    step. With a strong
+    ``|Ξ| / |Ξ'|`` and the next secant step, with ``|Ξ'|`` the smaller of the secant
+    slope of the bracket and ``slope_ref`` (the slope over the whole first bracket: two
+    close iterates give a slope out of the small errors of their ``Ξ``). With a strong
     controller the response follows the target and ``Ξ`` is flat near its zero, so a
-    small ``|Ξ|`` alone does not bound the error of ``A*``.
+    small ``|Ξ|`` alone does not bound the error of ``A*``; nor does a noise floor:
+    a root whose standard error (floor / 3 over the slope) is above ``noise_tol · A*``
+    is not accepted.
     """
     fa, fb = a.xi, b.xi
     best: _Eval | None = None
@@ -156,8 +175,9 @@ def _illinois(
                 fa = fa / 2.0
             b, fb = c, c.xi
         slope = abs((b.xi - a.xi) / (b.a_star - a.a_star)) if b.a_star != a.a_star else 0.0
+        slope = min(slope, slope_ref)
         x_next = (a.a_star * fb - b.a_star * fa) / (fb - fa) if fb != fa else x
-        if slope > 0:
+        if slope > 0 and c.resp.floor / 3.0 / slope <= noise_tol * c.a_star:
             err = max(abs(c.xi) / slope, abs(x_next - c.a_star))
             allowed = rel_tol * c.a_star + c.resp.floor / slope
         else:
@@ -220,7 +240,20 @@ def _refine(
     assert corrector is not None
     corrector.jacobian = None  # it did not help: rebuild it next time
     scanner.vec = vec0
-    root = _illinois(scanner, lo, hi, opts.amp_tol, opts.secant_max)
+    # the error of Ξ is the shape's control error (the tolerance of Picard): below the
+    # control error that ``amp_tol`` of A* makes at the bracket's slope (small near a
+    # Hopf point, where the response follows the target)
+    slope = abs((hi.xi - lo.xi) / (hi.a_star - lo.a_star))
+    shape_tol = min(opts.tol, opts.amp_tol * slope)
+    root = _illinois(
+        lambda x: scanner(x, shape_tol=shape_tol),
+        lo,
+        hi,
+        opts.amp_tol,
+        opts.secant_max,
+        slope,
+        opts.zero_precision,
+    )
     if root is None:
         return None, corrector
     y = np.concatenate([root.vec, [value]])
@@ -241,6 +274,17 @@ def _next_amplitude(
         return None
     a = float(grid[-1]) + j * float(grid[-1] - grid[-2])
     return a if a < a_max else None
+
+
+def _no_zero(lo: _Eval, hi: _Eval, corrector: BroydenCorrector | None) -> str:
+    """Why no zero of ``Ξ`` was found in the bracket ``[lo, hi]`` (with the corrector's
+    last reason when it is the noise)."""
+    last = getattr(corrector, "last_reason", None)
+    why = f": {last}" if isinstance(last, NoiseLimited) else ""
+    return (
+        f"the control error did not converge to zero in A* = [{lo.a_star:.4g}, "
+        f"{hi.a_star:.4g}] (Broyden on the target, then the secant on A*){why}"
+    )
 
 
 def scan(
@@ -320,11 +364,7 @@ def scan(
             lo, hi = prev, e
             ev, corrector = _refine(rig, opts, scanner, param, value, lo, hi, corrector)
             if ev is None:
-                fail(
-                    f"the control error did not converge to zero in A* = [{lo.a_star:.4g}, "
-                    f"{hi.a_star:.4g}] (Broyden on the target, then the secant on A*)",
-                    bracket=[lo.a_star, hi.a_star],
-                )
+                fail(_no_zero(lo, hi, corrector), bracket=[lo.a_star, hi.a_star])
             else:
                 fam = scanner.family
                 try:
