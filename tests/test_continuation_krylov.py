@@ -12,7 +12,11 @@ import bifid.continuation._correctors as correctors
 from bifid.continuation import NewtonCorrector, fourier_differentiation_matrix, orbit_problem
 from bifid.continuation._folds import _large_fold_measures
 from bifid.continuation._krylov import gmres
-from bifid.continuation._orbit_branch import homoclinic_convergence, homoclinic_signature
+from bifid.continuation._orbit_branch import (
+    homoclinic_convergence,
+    homoclinic_settled,
+    homoclinic_signature,
+)
 from bifid.systems import get_system
 
 
@@ -105,3 +109,19 @@ def test_parameter_converging_geometrically_in_the_period_is_homoclinic():
     stuck = np.concatenate([lam[:250], np.full(50, lam[249])])
     assert not homoclinic_convergence(stuck, stuck_T)
     assert homoclinic_convergence(stuck, stuck_T, remaining=1e-5)
+
+
+def test_parameter_spiralling_into_a_saddle_focus_homoclinic_is_recognised():
+    """Check the end of a branch towards a saddle-focus homoclinic orbit (the parameter
+    oscillates about its limit with a decaying amplitude: Shilnikov's spiral of cycle
+    folds, as in AUTO-07p's ``tor``) against a fold of a short-period branch."""
+    T = np.linspace(7.0, 150.0, 600)
+    lam = -0.7975 + 0.02 * np.exp(-T / 9.0) * np.cos(2.0 * np.pi * T / 20.0)
+    assert not homoclinic_convergence(lam, T)  # not monotone
+    assert homoclinic_settled(lam, T, remaining=1e-5)
+    assert homoclinic_signature(lam, T, remaining=1e-5)
+    # early on (the oscillation still 1e-4 of the range) it is not settled
+    assert not homoclinic_signature(lam[:150], T[:150], remaining=1e-5)
+    # a period that grew only a few times: no homoclinic approach, however flat
+    short = np.linspace(2.0, 9.0, 100)
+    assert not homoclinic_settled(np.full(100, 0.15) + 1e-9 * short, short, remaining=1e-5)

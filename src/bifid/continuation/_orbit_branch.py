@@ -73,6 +73,10 @@ HOMOCLINIC_REMAINING_AT_END = 1e-5
 HOMOCLINIC_NOISE = 1e-11
 #: points examined for the signature of a homoclinic approach
 _HOMOCLINIC_WINDOW = 6
+#: a parameter that settles while it oscillates (a saddle-focus: Shilnikov's spiral of
+#: folds) names a homoclinic approach only once the period exceeds this multiple of the
+#: branch's smallest
+HOMOCLINIC_SETTLED_FACTOR = 10.0
 #: a step from an orbit larger than this fraction of the branch's largest to one smaller
 #: than ``COLLAPSE_TO`` of it has fallen onto the equilibrium (a constant solves the
 #: collocation equations): the step is rejected and retried shorter
@@ -141,7 +145,9 @@ def homoclinic_signature(
     converges geometrically in the period (:func:`homoclinic_convergence`, with
     ``remaining``)."""
     params, periods = np.asarray(params, dtype=float), np.asarray(periods, dtype=float)
-    if homoclinic_convergence(params, periods, remaining):
+    if homoclinic_convergence(params, periods, remaining) or homoclinic_settled(
+        params, periods, remaining
+    ):
         return True
     k = _HOMOCLINIC_WINDOW
     if len(periods) < k + 1:
@@ -151,6 +157,30 @@ def homoclinic_signature(
         return False
     scale = max(float(np.ptp(params)), abs(float(lam[-1])), 1e-300)
     return bool(abs(lam[-1] - lam[0]) <= HOMOCLINIC_SETTLED * scale)
+
+
+def homoclinic_settled(
+    params: np.ndarray, periods: np.ndarray, remaining: float = HOMOCLINIC_REMAINING
+) -> bool:
+    """The parameter has settled while the period grew far: on the points where the
+    period reached a new maximum, over the periods from ``T_max / HOMOCLINIC_SPAN`` to
+    ``T_max`` (at least 6 points, ``T_max`` at least ``HOMOCLINIC_SETTLED_FACTOR`` times
+    the branch's smallest period), the parameter spreads by at most ``remaining`` times
+    its range (or size). Towards a homoclinic orbit of a saddle-focus the parameter
+    oscillates about its limit with a decaying amplitude (a spiral of cycle folds), which
+    :func:`homoclinic_convergence` (a monotone parameter) does not take."""
+    if len(periods) < 8:
+        return False
+    record = [0]
+    for i in range(1, len(periods)):
+        if periods[i] > periods[record[-1]]:
+            record.append(i)
+    T, lam = periods[record], params[record]
+    lam = lam[T >= T[-1] / HOMOCLINIC_SPAN]
+    if len(lam) < 6 or T[-1] < HOMOCLINIC_SETTLED_FACTOR * float(np.min(periods)):
+        return False
+    scale = max(float(np.ptp(params)), float(np.max(np.abs(lam))), 1e-300)
+    return bool(np.ptp(lam) <= remaining * scale)
 
 
 def homoclinic_convergence(
