@@ -341,6 +341,25 @@ def orbit_delta(system, run: dict, inside: list[dict], param: float, period: flo
     return curve_delta(inside, param, period), None, " (interpolated)"
 
 
+def missed_folds(label: str, orb: dict, pairs: list, every: list[dict]) -> list[str]:
+    """Notes on AUTO's cycle LPs that bifid's branch does not have up to AUTO's last
+    period: bifid's cycle fold nearest in the parameter anywhere on the branch, with both
+    periods (AUTO's period at a fold near a homoclinic orbit can be off by its mesh)."""
+    out = []
+    periods = dict(orb["cycle_folds"])
+    for ref, got in pairs:
+        if got is not None or not every:
+            continue
+        c = min(every, key=lambda c: abs(c["param"] - ref))
+        out.append(
+            f"{label}: AUTO's cycle LP at {ref:g} (period {periods.get(ref)!s}) is not on "
+            f"bifid's branch up to AUTO's last period; bifid's nearest cycle fold is at "
+            f"{c['param']:.9g} (Δ {(c['param'] - ref) / unit(ref):+.1f}), period "
+            f"{c.get('period', float('nan')):.6g}"
+        )
+    return out
+
+
 def compare_orbits(
     demo: str, run: dict, data: dict, hopf_branch: dict[float, int], system=None
 ) -> tuple:
@@ -357,10 +376,11 @@ def compare_orbits(
         orbits = branch_orbits(data, b)
         n = coverage(orbits, orb["stop"])
         inside = orbits[:n]
-        cfs = [c for c in data.get("cycle_folds", []) if c.get("branch") == b]
-        cfs = [c for c in cfs if along(orbits, c["param"], c.get("period") or 0) < n]
+        every = [c for c in data.get("cycle_folds", []) if c.get("branch") == b]
+        cfs = [c for c in every if along(orbits, c["param"], c.get("period") or 0) < n]
         pairs, left = match([p for p, _ in orb["cycle_folds"]], [c["param"] for c in cfs])
         rows += point_rows(demo, label, "cycle LP", pairs)
+        notes += missed_folds(label, orb, pairs, every)
         extra += [(label, "cycle LP", v) for v in left if "cycle_fold" in orb["detect"]]
         for s in data.get("secondary", []):
             if s.get("branch") != b or along(orbits, s["param"], 0.0) >= n:
