@@ -159,6 +159,25 @@ def homoclinic_signature(
     return bool(abs(lam[-1] - lam[0]) <= HOMOCLINIC_SETTLED * scale)
 
 
+def _top_records(
+    params: np.ndarray, periods: np.ndarray, factor: float
+) -> tuple[np.ndarray, np.ndarray] | tuple[None, None]:
+    """The points where the period reached a new maximum, over the periods from
+    ``T_max / HOMOCLINIC_SPAN`` to ``T_max``: their periods and parameters, or ``None``
+    with fewer than 6 of them or ``T_max`` below ``factor`` times the smallest period."""
+    if len(periods) < 8:
+        return None, None
+    record = [0]
+    for i in range(1, len(periods)):
+        if periods[i] > periods[record[-1]]:
+            record.append(i)
+    T, lam = periods[record], params[record]
+    keep = T >= T[-1] / HOMOCLINIC_SPAN
+    if np.count_nonzero(keep) < 6 or T[-1] < factor * float(np.min(periods)):
+        return None, None
+    return T[keep], lam[keep]
+
+
 def homoclinic_settled(
     params: np.ndarray, periods: np.ndarray, remaining: float = HOMOCLINIC_REMAINING
 ) -> bool:
@@ -169,15 +188,8 @@ def homoclinic_settled(
     its range (or size). Towards a homoclinic orbit of a saddle-focus the parameter
     oscillates about its limit with a decaying amplitude (a spiral of cycle folds), which
     :func:`homoclinic_convergence` (a monotone parameter) does not take."""
-    if len(periods) < 8:
-        return False
-    record = [0]
-    for i in range(1, len(periods)):
-        if periods[i] > periods[record[-1]]:
-            record.append(i)
-    T, lam = periods[record], params[record]
-    lam = lam[T >= T[-1] / HOMOCLINIC_SPAN]
-    if len(lam) < 6 or T[-1] < HOMOCLINIC_SETTLED_FACTOR * float(np.min(periods)):
+    T, lam = _top_records(params, periods, HOMOCLINIC_SETTLED_FACTOR)
+    if T is None:
         return False
     scale = max(float(np.ptp(params)), float(np.max(np.abs(lam))), 1e-300)
     return bool(np.ptp(lam) <= remaining * scale)
@@ -200,16 +212,8 @@ def homoclinic_convergence(
     Differences of the parameter at the level of rounding (``HOMOCLINIC_NOISE``) are left
     out.
     """
-    if len(periods) < 8:
-        return False
-    record = [0]
-    for i in range(1, len(periods)):
-        if periods[i] > periods[record[-1]]:
-            record.append(i)
-    T, lam = periods[record], params[record]
-    keep = T >= T[-1] / HOMOCLINIC_SPAN
-    T, lam = T[keep], lam[keep]
-    if len(T) < 6 or T[-1] < 2.0 * float(np.min(periods)):
+    T, lam = _top_records(params, periods, 2.0)
+    if T is None:
         return False
     dlam, dT = np.diff(lam), np.diff(T)
     scale = max(float(np.ptp(params)), float(np.max(np.abs(lam))), 1e-300)
