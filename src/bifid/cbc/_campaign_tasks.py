@@ -371,7 +371,12 @@ def _ppcbc_branch(camp: Campaign, start: dict[str, Any], saved: dict[str, Any] |
         # oscillation started near this LCO first
         camp.rig.set_parameter(spec.param, float(start["y"][-1]))
         a0 = float(start["y"][0])
-        bootstrap(camp.rig, opts, 0.8 * a0, float(start["omega"]), a_max=a0)
+        try:
+            bootstrap(camp.rig, opts, 0.8 * a0, float(start["omega"]), a_max=a0)
+        except ConvergenceError as exc:  # recorded; the campaign goes on
+            camp.fail({spec.param: float(start["y"][-1])}, f"the LCO could not be started: {exc}")
+            camp.end_branch(b, "failed", str(exc))
+            return
         st, r = _start_branch(corrector, driver, np.asarray(start["y"], float), _direction(camp))
         if st is None:
             camp.fail(
