@@ -48,6 +48,10 @@ if TYPE_CHECKING:
 __all__ = ["Invasive", "LCOPoint", "PPCBCOptions", "PPCBCProblem", "make_point"]
 
 
+#: a measured noise floor is this many standard deviations of the noise
+FLOOR_SIGMAS = 3.0
+
+
 @dataclass(frozen=True)
 class PPCBCOptions(ProtocolOptions):
     """Numbers that steer PP-CBC; checked when built.
@@ -371,8 +375,8 @@ class PPCBCProblem(MeasuredProblem):
                 inv_row = np.linalg.solve(np.vstack([J, e_p]).T, np.eye(self.n + 1)[0])
             except np.linalg.LinAlgError:
                 return math.inf
-        # (floors are 3σ; the components' noises independent)
-        noise = float(np.linalg.norm(inv_row[: self.n] * ev.floor)) / 3.0
+        # (the components' noises independent)
+        noise = float(np.linalg.norm(inv_row[: self.n] * ev.floor)) / FLOOR_SIGMAS
         return noise / max(abs(float(ev.y[0])), 1e-300) if math.isfinite(noise) else math.inf
 
     def precise(self, ev: Evaluation) -> bool:

@@ -35,7 +35,14 @@ from bifid.cbc._measured import (
     NoiseLimited,
     RigTripped,
 )
-from bifid.cbc._ppcbc import Invasive, LCOPoint, PPCBCOptions, PPCBCProblem, make_point
+from bifid.cbc._ppcbc import (
+    FLOOR_SIGMAS,
+    Invasive,
+    LCOPoint,
+    PPCBCOptions,
+    PPCBCProblem,
+    make_point,
+)
 from bifid.cbc._ppcbc_family import Response, TargetFamily, bootstrap
 from bifid.cbc._rig import AbstractRig
 from bifid.cbc._secant import HarmonicSecant
@@ -177,7 +184,7 @@ def _illinois(
         slope = abs((b.xi - a.xi) / (b.a_star - a.a_star)) if b.a_star != a.a_star else 0.0
         slope = min(slope, slope_ref)
         x_next = (a.a_star * fb - b.a_star * fa) / (fb - fa) if fb != fa else x
-        if slope > 0 and c.resp.floor / 3.0 / slope <= noise_tol * c.a_star:
+        if slope > 0 and c.resp.floor / FLOOR_SIGMAS / slope <= noise_tol * c.a_star:
             err = max(abs(c.xi) / slope, abs(x_next - c.a_star))
             allowed = rel_tol * c.a_star + c.resp.floor / slope
         else:
