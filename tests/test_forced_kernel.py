@@ -217,6 +217,28 @@ def test_frc_at_untrained_forcing_matches_the_exact_curve(model, forcing):
     assert cov["n"] > 50 and cov["coverage"] > 0.6
 
 
+@pytest.mark.parametrize("seed", [300009, 300011])
+def test_noisy_frcs_give_the_two_true_folds_between_them(seed):
+    """1 % noise on amplitude and phase: the weakly bistable FRC between the two trained
+    levels (folds 7e-4 apart in Ω) has exactly its two folds, not extra pairs from a GP that
+    interpolates the noise (``a``'s noise at its floor, its length scale below the data
+    spacing)."""
+    rng = np.random.default_rng(seed)
+    psi = np.linspace(0.12, np.pi - 0.12, 16)
+    cols: dict[str, list] = {"omega": [], "forcing": [], "amplitude": [], "phase": []}
+    for f in TRAIN_F:
+        om, rho = curve(f, psi)
+        cols["omega"].append(om)
+        cols["forcing"].append(np.full(psi.size, f))
+        cols["amplitude"].append(rho * (1 + 0.01 * rng.standard_normal(psi.size)))
+        cols["phase"].append(np.pi - psi + 0.01 * rng.standard_normal(psi.size))
+    m = ForcedKernelModel(forcing_scale=KAPPA, observation=False, seed=seed)
+    m.fit(**{k: np.concatenate(v) for k, v in cols.items()})
+    br = m.frc(0.0085, (0.95, 1.2))
+    folds = np.sort([sp.param for sp in br.special("fold")])
+    np.testing.assert_allclose(folds, exact_folds(0.0085), rtol=0, atol=1e-4)
+
+
 def test_fit_from_scurves_with_default_settings():
     """S-curves (fixed Ω, curve ids) at four frequencies, default settings: κ identified,
     FRC at an untrained forcing level exact (the setting of ``bifid demo forced``)."""

@@ -103,7 +103,7 @@ def fit_kappa(
     prep = gp_b.prepare(x, p0)
     ys = prep["y_scale"]
     n = x.shape[0]
-    xp, _, xs, xc, evp, mask = padded_args(
+    xp, _, xs, xc, evp, mask, _ = padded_args(
         prep["x"], p0 / ys, prep["extra_var"], prep["x_scale"], prep["x_center"]
     )
     log_k0 = math.log(kappa_ls)
@@ -208,9 +208,11 @@ def fit_observation(
         bounds=HyperBounds(length_scale=(0.05, 100.0), noise=(noise_floor, 1.0)),
     )
     rs = float(np.max(rho))
-    return gp.fit(
+    n = sum(len(y) for y in ys)
+    return gp.fit(  # φ(0) = 0: a pseudo-observation
         np.concatenate([*zs, np.zeros((1, 2))]),
         np.concatenate([*ys, np.zeros(1)]),
+        pseudo=np.arange(n + 1) == n,
         x_scale=np.array([rs, rs]),
     )
 
@@ -260,9 +262,9 @@ def a_samples(
     target: str,
     n_pseudo: int,
     notes: list[str],
-) -> tuple[np.ndarray, np.ndarray]:
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Training inputs and targets of ``a`` (eq. 6.19 or the phase) with the
-    pseudo-observations ``a(0, Ω) = 0``."""
+    pseudo-observations ``a(0, Ω) = 0``, and which points are those."""
     rho, om = x[:, 0], x[:, 1]
     if target == "eq6.19":
         rad = gamma**2 - (b_fit - om) ** 2 * rho**2
@@ -275,9 +277,10 @@ def a_samples(
     else:
         a_t = -gamma * np.sin(psi)
     if n_pseudo <= 0:
-        return x, a_t
+        return x, a_t, np.zeros(a_t.size, dtype=bool)
     om_ps = np.linspace(om.min(), om.max(), n_pseudo) if np.ptp(om) > 0 else np.full(1, om[0])
     return (
         np.concatenate([x, np.stack([np.zeros_like(om_ps), om_ps], axis=1)]),
         np.concatenate([a_t, np.zeros_like(om_ps)]),
+        np.arange(a_t.size + om_ps.size) >= a_t.size,
     )

@@ -3,8 +3,10 @@ selection by marginal likelihood or closed-form leave-one-out, and the fitted po
 
 The model, criteria and posterior are stated in :mod:`._gp_core`; this module is the
 estimator around them: inputs validated and scaled, hyperparameters searched in log space
-within bounds by L-BFGS-B (:func:`._search.minimize_multistart`, gradients by JAX) from seeded
-starts, the fitted :class:`~._gp_core.GPState` kept for pure-JAX evaluation.
+within bounds (the length scales' lower bound raised to the data spacing; pseudo-observations
+conditioned on rather than scored: :mod:`._gp_core`) by L-BFGS-B
+(:func:`._search.minimize_multistart`, gradients by JAX) from seeded starts, the fitted
+:class:`~._gp_core.GPState` kept for pure-JAX evaluation.
 """
 
 from __future__ import annotations
@@ -29,6 +31,7 @@ from bifid.identify.forced_kernel._gp_core import (
     _split,
     gp_mean,
     gp_var,
+    input_spacing,
     padded_args,
 )
 from bifid.identify.forced_kernel._search import laplace_log_errors, minimize_multistart
@@ -42,8 +45,9 @@ Criterion = Literal["ml", "loo"]
 class HyperBounds:
     """Box bounds of the hyperparameters (not logs), relative to the scaled data.
 
-    ``length_scale`` in units of the input spread, ``signal``/``basis``/``noise`` in units
-    of the RMS of the targets.
+    ``length_scale`` in units of the input spread (its lower bound is raised to the data
+    spacing, :func:`~._gp_core.input_spacing`, where that is larger),
+    ``signal``/``basis``/``noise`` in units of the RMS of the targets.
     """
 
     length_scale: tuple[float, float] = (0.05, 50.0)
@@ -150,8 +154,9 @@ class GPRegressor:
         return xa, ya, ev
 
     # ------------------------------------------------------------------ fit
-    def _layout(self, d: int) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-        """Initial θ and log-bounds (lo, hi) for D inputs."""
+    def _layout(self, d: int, spacing: float = 0.0) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Initial θ and log-bounds (lo, hi) for D inputs; the length scales' lower bound
+        is raised to ``spacing`` (:func:`input_spacing`) where that is larger."""
         b = self.bounds
         m = len(self.basis)
         theta0 = np.concatenate(
@@ -178,6 +183,8 @@ class GPRegressor:
                 [math.log(b.noise[1])],
             ]
         )
+        floor = math.log(min(max(spacing, b.length_scale[0]), b.length_scale[1]))
+        lo[1 : 1 + d] = floor
         theta0 = np.clip(theta0, lo, hi)
         return theta0, lo, hi
 
@@ -189,16 +196,23 @@ class GPRegressor:
         x_scale: Any = None,
         y_scale: float | None = None,
         extra_var: Any = None,
+        pseudo: Any = None,
     ) -> dict[str, Any]:
         """Validate and scale the data; the initial ``θ`` and its log-bounds.
 
         Used by :meth:`fit` and by callers that optimise ``θ`` jointly with other
         quantities (e.g. a forcing scale in the targets) before calling
         ``fit(..., theta=...)``. Returns a dict with ``x``, ``y``, ``extra_var`` (raw),
-        ``x_scale``, ``x_center``, ``y_scale``, ``theta0``, ``lo``, ``hi``, ``notes``.
+        ``pseudo`` (bool), ``x_scale``, ``x_center``, ``y_scale``, ``theta0``, ``lo``,
+        ``hi``, ``notes``.
         """
         xa, ya, ev = self._validate(X, y, extra_var)
-        d = xa.shape[1]
+        n, d = xa.shape
+        ps = np.zeros(n, dtype=bool) if pseudo is None else np.asarray(pseudo, dtype=bool)
+        if ps.shape != (n,) or ps.all():
+            raise BifidInputError(
+                f"pseudo must be {n} booleans (one per point), not all of them True."
+            )
         notes: list[str] = []
         if x_scale is None:
             xs = xa.std(axis=0)
@@ -223,7 +237,7 @@ class GPRegressor:
         if not (ys > 0 and math.isfinite(ys)):
             ys = 1.0
             notes.append("all targets are zero; y_scale set to 1")
-        theta0, lo, hi = self._layout(d)
+        theta0, lo, hi = self._layout(d, input_spacing(xa / xs, ps))
         fixed = [None] * d if self.fixed_length_scales is None else list(self.fixed_length_scales)
         for i in range(d):
             if constant[i] and fixed[i] is None:
@@ -239,6 +253,7 @@ class GPRegressor:
             "x": xa,
             "y": ya,
             "extra_var": ev,
+            "pseudo": ps,
             "x_scale": xs,
             "x_center": xc,
             "y_scale": ys,
@@ -254,6 +269,7 @@ class GPRegressor:
         y: Any,
         *,
         extra_var: Any = None,
+        pseudo: Any = None,
         x_scale: Any = None,
         y_scale: float | None = None,
         theta: Any = None,
@@ -265,8 +281,12 @@ class GPRegressor:
         X : array (n, D)
         y : array (n,)
         extra_var : array (n,), optional
-            Known extra noise variance per point (raw units), e.g. tiny for
-            pseudo-observations.
+            Known extra noise variance per point (raw units).
+        pseudo : array of bool (n,), optional
+            Pseudo-observations: values known by construction (e.g. ``a(0, Ω) = 0``), which
+            carry only ``extra_var``, not the fitted noise ``σ_n²``, and which the selection
+            criterion conditions on instead of scoring (module docstring of
+            :mod:`._gp_core`).
         x_scale : array (D,), optional
             Input spreads (default: standard deviation per column; a constant column gets
             ``max(|mean|, 1)`` and its length scale is held at the upper bound, since the
@@ -281,8 +301,10 @@ class GPRegressor:
         -------
         self
         """
-        prep = self.prepare(X, y, extra_var=extra_var, x_scale=x_scale, y_scale=y_scale)
-        xa, ya, ev = prep["x"], prep["y"], prep["extra_var"]
+        prep = self.prepare(
+            X, y, extra_var=extra_var, pseudo=pseudo, x_scale=x_scale, y_scale=y_scale
+        )
+        xa, ya, ev, ps = prep["x"], prep["y"], prep["extra_var"], prep["pseudo"]
         xs, xc, ys = prep["x_scale"], prep["x_center"], prep["y_scale"]
         n = xa.shape[0]
         if theta is not None:
@@ -291,15 +313,15 @@ class GPRegressor:
                 raise BifidInputError(
                     f"theta must be {prep['theta0'].shape[0]} finite values, got {th.shape}."
                 )
-            self._set_state(th, xa, ya / ys, ev / ys**2, xs, xc, ys)
+            self._set_state(th, xa, ya / ys, ev / ys**2, xs, xc, ys, ps)
             self.objective_ = float("nan")
             self.n_evaluations_ = 0
             self.optimizer_message_ = "hyperparameters given"
             self.notes_ = prep["notes"]
             self.n_train_ = n
             return self
-        args = padded_args(xa, ya / ys, ev / ys**2, xs, xc)
-        vg = _objective(self.basis, self.criterion)
+        args = padded_args(xa, ya / ys, ev / ys**2, xs, xc, ps)
+        vg = _objective(self.basis, self.criterion, bool(ps.any()))
         best = minimize_multistart(
             lambda th: vg(jnp.asarray(th), *args),
             prep["theta0"],
@@ -308,7 +330,7 @@ class GPRegressor:
             n_restarts=self.n_restarts,
             seed=self.seed,
         )
-        self._set_state(best.x, xa, ya / ys, ev / ys**2, xs, xc, ys)
+        self._set_state(best.x, xa, ya / ys, ev / ys**2, xs, xc, ys, ps)
         self.objective_ = float(best.fun)
         self.n_evaluations_ = int(best.nfev_total)
         self.optimizer_message_ = str(best.message)
@@ -316,7 +338,7 @@ class GPRegressor:
         self.n_train_ = n
         return self
 
-    def _set_state(self, theta, xa, ys_scaled, ev_scaled, xs, xc, ys) -> None:
+    def _set_state(self, theta, xa, ys_scaled, ev_scaled, xs, xc, ys, pseudo) -> None:
         n = xa.shape[0]
         args = padded_args(
             np.asarray(xa),
@@ -324,8 +346,9 @@ class GPRegressor:
             np.asarray(ev_scaled),
             np.asarray(xs),
             np.asarray(xc),
+            pseudo,
         )
-        xp, yp, xs_j, xc_j, evp, mask = args
+        xp, yp, xs_j, xc_j, evp, mask, noisy = args
         theta = jnp.asarray(theta, dtype=jnp.float64)
         chol, alpha, loo_scaled, fit_scaled, nlml = _posterior(theta, *args, self.basis)
         if not bool(jnp.all(jnp.isfinite(chol))):
@@ -341,6 +364,7 @@ class GPRegressor:
             x_center=xc_j,
             y_scale=jnp.asarray(float(ys)),
             mask=mask,
+            noisy=noisy,
             monomials=self.basis,
         )
         # padded copies (sampling) and the raw training set (persistence, baselines)
@@ -349,12 +373,14 @@ class GPRegressor:
         self.x_train_ = np.asarray(xa, dtype=float)
         self.y_train_ = np.asarray(ys_scaled, dtype=float) * float(ys)
         self.extra_var_ = np.asarray(ev_scaled, dtype=float)
-        # diagnostics in raw units
-        loo_resid = np.asarray(loo_scaled)[:n] * ys
+        self.pseudo_ = np.asarray(pseudo, dtype=bool)
+        # diagnostics in raw units, over the measurements
+        meas = ~self.pseudo_
+        loo_resid = np.asarray(loo_scaled)[:n][meas] * ys
         self.loo_rmse_ = float(np.sqrt(np.mean(loo_resid**2)))
-        resid = (np.asarray(fit_scaled)[:n] - np.asarray(ys_scaled)) * ys
+        resid = (np.asarray(fit_scaled)[:n] - np.asarray(ys_scaled))[meas] * ys
         self.train_rmse_ = float(np.sqrt(np.mean(resid**2)))
-        self.log_marginal_likelihood_ = -float(nlml) - n * math.log(ys)
+        self.log_marginal_likelihood_ = -float(nlml) - int(meas.sum()) * math.log(ys)
 
     # ------------------------------------------------------------------ accessors
     def _check(self) -> None:
@@ -395,10 +421,11 @@ class GPRegressor:
         st = self.state_
         d, m = st.n_dim, len(self.basis)
         theta = np.asarray(st.theta, dtype=float)
-        _, lo, hi = self._layout(d)
-        grad = _objective(self.basis, "ml")
+        spacing = input_spacing(self.x_train_ / np.asarray(st.x_scale), self.pseudo_)
+        _, lo, hi = self._layout(d, spacing)
+        grad = _objective(self.basis, "ml", bool(self.pseudo_.any()))
         args = (st.x, self._padded["y"], st.x_scale, st.x_center, self._padded["extra_var"])
-        se_log = laplace_log_errors(lambda th: grad(th, *args, st.mask)[1], theta, lo, hi)
+        se_log = laplace_log_errors(lambda th: grad(th, *args, st.mask, st.noisy)[1], theta, lo, hi)
         raw = self.hyperparameters_
         se = se_log * np.concatenate(
             [
@@ -464,6 +491,7 @@ class GPRegressor:
             f"{prefix}x": self.x_train_,
             f"{prefix}y": self.y_train_ / float(st.y_scale),
             f"{prefix}extra_var": self.extra_var_,
+            f"{prefix}pseudo": self.pseudo_.astype(float),
             f"{prefix}x_scale": np.asarray(st.x_scale),
             f"{prefix}x_center": np.asarray(st.x_center),
             f"{prefix}y_scale": np.asarray(st.y_scale),
@@ -538,6 +566,10 @@ class GPRegressor:
             and np.all(a["extra_var"] >= 0)
         ):
             raise BifidInputError(f"GP record {prefix!r}: non-finite or out-of-range values.")
+        # files written before pseudo-observations were marked: every point is measured
+        pseudo = np.asarray(arrays.get(prefix + "pseudo", np.zeros(n)), dtype=float)
+        if pseudo.shape != (n,):
+            raise BifidInputError(f"GP record {prefix!r}: inconsistent array shapes.")
         gp._set_state(
             a["theta"],
             a["x"],
@@ -546,6 +578,7 @@ class GPRegressor:
             a["x_scale"],
             a["x_center"],
             float(a["y_scale"].reshape(-1)[0]),
+            pseudo > 0.5,
         )
         gp.notes_ = []
         gp.n_train_ = n

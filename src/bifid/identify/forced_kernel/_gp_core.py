@@ -41,8 +41,33 @@ either
 never the training loss (which the thesis's eq. 6.16 minimises and which rewards
 interpolating noise). Random restarts are seeded.
 
+Pseudo-observations. Rows marked ``pseudo`` are values known by construction, not
+measurements: for the kernel model's ``a`` the pseudo-observations ``a(0, Ω) = 0`` (eq. 6.9:
+``a`` vanishes at ``ρ = 0``; ``a`` is learned from eq. 6.19 with them). They carry only
+their known variance ``v_i``, not ``σ_n²``, and both criteria score the measurements
+*given* them: ``-log p(y_meas | y_pseudo) = -log p(y) + log p(y_pseudo)`` (both from the
+same ``K_y``), and the LOO sum runs over the measurements only. Scored like measurements, a
+dozen exactly predictable zeros would reward ``σ_n → 0`` by about ``log(σ_true/σ_n)``
+each, which can outweigh the measurements' evidence for their noise: ``σ_n`` then sits at
+its floor while a short length scale takes up the noise, the posterior mean of ``a``
+interpolates it, and predicted FRCs get spurious fold pairs (eq. 6.11 is very sensitive to
+``a`` near the peak, where ``a ≈ −Γ``).
+
+Length-scale floor. Every ``ℓ_d`` is bounded below by the data's spacing ``h``, the median
+over the measurements of the distance to the nearest other input in scaled units
+(:func:`input_spacing`), besides ``HyperBounds.length_scale``. At ``ℓ_d ≥ h`` a typical
+measurement keeps a prior correlation of at least ``e^{-1/2}`` with its nearest neighbour
+(``Σ_d (Δu_d/ℓ_d)² ≤ |Δu|²/h²``), so the SE part cannot act as independent noise. Below
+``h`` the two are nearly indistinguishable at the data (the criteria are flat along
+``σ² + σ_n² =`` const): ``σ_n`` could slide to its floor while the SE part reproduced the
+noise with bumps of width ``ℓ`` between the training points — structure on scales the
+data do not resolve.
+
 Posterior: mean ``μ(x) = k(x, X) α`` with ``α = K_y⁻¹ y`` and latent variance
-``k(x, x) − k(x, X) K_y⁻¹ k(X, x)``. :class:`GPState` is an equinox module holding
+``k(x, x) − k(x, X) K_y⁻¹ k(X, x)``; the basis part of ``k(x, X) α`` is summed as
+``h(x)ᵀ(τ² ∘ H(X)ᵀα)``, so that large basis variances (which the LOO criterion hardly
+bounds) do not leave rounding noise in the mean that varies from one ``x`` to the next
+(a Newton solver on the mean then stalls). :class:`GPState` is an equinox module holding
 the precomputed arrays, so the mean and its derivatives are cheap, pure JAX functions
 usable inside jitted Newton solvers and continuation.
 
@@ -93,6 +118,7 @@ __all__ = [
     "bucket",
     "gp_mean",
     "gp_var",
+    "input_spacing",
     "neg_log_marginal_likelihood",
     "padded_args",
     "sample_eval",
@@ -151,6 +177,24 @@ def _cov(
     return k
 
 
+def _cross(state: GPState, x: Array, w: Array) -> Array:
+    """``k(x, X) w`` for weights ``w`` (n_pad,) or (n_pad, S), the basis part summed as
+    ``h(x) · (τ² H(X)ᵀ w)``: with large basis variances the entries of ``k(x, X)`` are large
+    and cancel in the product, which summed per point leaves rounding noise that varies
+    from one ``x`` to the next (a Newton solver on the mean then stalls)."""
+    theta, mono = state.theta, state.monomials
+    n_dim = x.shape[1]
+    log_s, log_l, log_t, _ = _split(theta, n_dim, len(mono))
+    d = (x[:, None, :] - state.x[None, :, :]) / (state.x_scale * jnp.exp(log_l))
+    out = (jnp.exp(2.0 * log_s) * jnp.exp(-0.5 * jnp.sum(d * d, axis=-1))) @ w
+    if mono:
+        h = basis_matrix((x - state.x_center) / state.x_scale, mono)
+        hx = basis_matrix((state.x - state.x_center) / state.x_scale, mono)
+        coef = jnp.exp(2.0 * log_t)[:, None] * (hx.T @ w.reshape(w.shape[0], -1))
+        out = out + (h @ coef).reshape(out.shape)
+    return out
+
+
 def _kdiag(theta: Array, x: Array, x_scale: Array, x_center: Array, monomials: Monomials):
     n_dim = x.shape[1]
     log_s, _, log_t, _ = _split(theta, n_dim, len(monomials))
@@ -161,15 +205,17 @@ def _kdiag(theta: Array, x: Array, x_scale: Array, x_center: Array, monomials: M
     return out
 
 
-def _masked_ky(theta, x, mask, extra_var, x_scale, x_center, monomials):
-    """``K_y`` of the padded set: real block as usual, padded block the identity."""
+def _masked_ky(theta, x, mask, extra_var, x_scale, x_center, monomials, noisy=None):
+    """``K_y`` of the padded set: real block as usual, padded block the identity; the
+    noise ``σ_n²`` only on the ``noisy`` rows (measurements, not pseudo-observations)."""
     n_dim = x.shape[1]
     log_n = _split(theta, n_dim, len(monomials))[3]
+    noisy = mask if noisy is None else noisy
     k = _cov(theta, x, x, x_scale, x_center, monomials)
     mm = mask[:, None] * mask[None, :]
     # relative jitter keeps K_y numerically positive definite at extreme hyperparameters
     jitter = _JITTER * jnp.sum(jnp.diag(k) * mask) / jnp.maximum(jnp.sum(mask), 1.0)
-    noise = jnp.exp(2.0 * log_n) + extra_var + jitter
+    noise = jnp.exp(2.0 * log_n) * noisy + extra_var + jitter
     return k * mm + jnp.diag(jnp.where(mask > 0, noise, 1.0))
 
 
@@ -224,11 +270,13 @@ def neg_log_marginal_likelihood(
     monomials: Monomials = (),
     extra_var: Array | None = None,
     mask: Array | None = None,
+    noisy: Array | None = None,
 ) -> Array:
-    """``-log p(y | X, θ)`` of the (scaled) targets ``y`` (R&W eq. 5.8)."""
+    """``-log p(y | X, θ)`` of the (scaled) targets ``y`` (R&W eq. 5.8); ``noisy`` (default
+    ``mask``) marks the rows that carry the noise ``σ_n²``."""
     mask = jnp.ones(x.shape[0]) if mask is None else mask
     extra_var = jnp.zeros(x.shape[0]) if extra_var is None else extra_var
-    ky = _masked_ky(theta, x, mask, extra_var, x_scale, x_center, monomials)
+    ky = _masked_ky(theta, x, mask, extra_var, x_scale, x_center, monomials, noisy)
     ym = y * mask
     n_eff = jnp.sum(mask)
     return (
@@ -236,30 +284,53 @@ def neg_log_marginal_likelihood(
     )
 
 
-def _loo_objective(theta, x, y, x_scale, x_center, monomials, extra_var, mask):
-    """Closed-form leave-one-out negative log predictive probability (R&W eq. 5.10–5.12)."""
-    ky = _masked_ky(theta, x, mask, extra_var, x_scale, x_center, monomials)
+def _conditional_nlml(theta, x, y, x_scale, x_center, monomials, extra_var, mask, noisy):
+    """``-log p(y_meas | y_pseudo, X, θ) = -log p(y) + log p(y_pseudo)``: the marginal
+    likelihood of the measurements (``noisy`` rows) given the pseudo-observations (the
+    other real rows), both from the same ``K_y``."""
+    ky = _masked_ky(theta, x, mask, extra_var, x_scale, x_center, monomials, noisy)
+    pseudo = mask * (1.0 - noisy)
+    ky_p = ky * (pseudo[:, None] * pseudo[None, :]) + jnp.diag(1.0 - pseudo)
+    ym, yp = y * mask, y * pseudo
+    return (
+        0.5 * ym @ (_inv_spd(ky) @ ym)
+        - 0.5 * yp @ (_inv_spd(ky_p) @ yp)
+        + 0.5 * (_logdet_spd(ky) - _logdet_spd(ky_p))
+        + 0.5 * jnp.sum(noisy) * jnp.log(2.0 * jnp.pi)
+    )
+
+
+def _loo_objective(theta, x, y, x_scale, x_center, monomials, extra_var, mask, noisy):
+    """Closed-form leave-one-out negative log predictive probability (R&W eq. 5.10–5.12)
+    of the measurements (``noisy`` rows), each given all other rows."""
+    ky = _masked_ky(theta, x, mask, extra_var, x_scale, x_center, monomials, noisy)
     kinv = _inv_spd(ky)
     alpha = kinv @ (y * mask)
     dinv = jnp.diag(kinv)
     var = 1.0 / dinv
     resid = alpha / dinv
     terms = 0.5 * jnp.log(var) + 0.5 * resid**2 / var + 0.5 * jnp.log(2.0 * jnp.pi)
-    return jnp.sum(terms * mask)
+    return jnp.sum(terms * noisy)
 
 
 @functools.lru_cache(maxsize=64)
-def _objective(monomials: Monomials, criterion: str):
+def _objective(monomials: Monomials, criterion: str, pseudo: bool = False):
+    """Jitted value and gradient of a selection criterion in ``θ``; ``pseudo``: the data
+    hold pseudo-observations (the marginal likelihood is then the conditional one)."""
     if criterion == "ml":
 
-        def f(theta, x, y, x_scale, x_center, extra_var, mask):
-            return neg_log_marginal_likelihood(
-                theta, x, y, x_scale, x_center, monomials, extra_var, mask
+        def f(theta, x, y, x_scale, x_center, extra_var, mask, noisy):
+            if not pseudo:
+                return neg_log_marginal_likelihood(
+                    theta, x, y, x_scale, x_center, monomials, extra_var, mask, noisy
+                )
+            return _conditional_nlml(
+                theta, x, y, x_scale, x_center, monomials, extra_var, mask, noisy
             )
     else:
 
-        def f(theta, x, y, x_scale, x_center, extra_var, mask):
-            return _loo_objective(theta, x, y, x_scale, x_center, monomials, extra_var, mask)
+        def f(theta, x, y, x_scale, x_center, extra_var, mask, noisy):
+            return _loo_objective(theta, x, y, x_scale, x_center, monomials, extra_var, mask, noisy)
 
     return jax.jit(jax.value_and_grad(f))
 
@@ -297,6 +368,7 @@ class GPState(eqx.Module):
     x_center: Array
     y_scale: Array
     mask: Array
+    noisy: Array
     monomials: Monomials = eqx.field(static=True)
 
     @property
@@ -308,8 +380,7 @@ def gp_mean(state: GPState, x: Array) -> Array:
     """Posterior mean at ``x`` of shape (N, D) (or (D,) for one point → scalar)."""
     single = x.ndim == 1
     xx = x[None, :] if single else x
-    ks = _cov(state.theta, xx, state.x, state.x_scale, state.x_center, state.monomials)
-    out = (ks @ state.alpha) * state.y_scale
+    out = _cross(state, xx, state.alpha) * state.y_scale
     return out[0] if single else out
 
 
@@ -365,16 +436,16 @@ def sample_eval(state: GPState, sample: GPSamples, x: Array) -> Array:
     single = x.ndim == 1
     xx = x[None, :] if single else x
     prior = _prior_sample_eval(state, sample.freq, sample.phase, sample.weight, sample.beta, xx)
-    ks = _cov(state.theta, xx, state.x, state.x_scale, state.x_center, state.monomials)
-    out = (prior + ks @ sample.v) * state.y_scale
+    out = (prior + _cross(state, xx, sample.v)) * state.y_scale
     return out[0] if single else out
 
 
 @functools.partial(jax.jit, static_argnames=("monomials",))
-def _posterior(theta, x, y, x_scale, x_center, extra_var, mask, monomials):
-    """Cholesky factor, ``α = K_y⁻¹y``, LOO residuals, fitted values and ``-log p(y)``
-    of a padded training set (one compiled program per bucket and basis)."""
-    ky = _masked_ky(theta, x, mask, extra_var, x_scale, x_center, monomials)
+def _posterior(theta, x, y, x_scale, x_center, extra_var, mask, noisy, monomials):
+    """Cholesky factor, ``α = K_y⁻¹y``, LOO residuals, fitted values and
+    ``-log p(y_meas | y_pseudo)`` of a padded training set (one compiled program per bucket
+    and basis)."""
+    ky = _masked_ky(theta, x, mask, extra_var, x_scale, x_center, monomials, noisy)
     chol = jnp.linalg.cholesky(ky)
     alpha = jax.scipy.linalg.cho_solve((chol, True), y * mask)
     kinv_diag = jnp.diag(
@@ -382,12 +453,7 @@ def _posterior(theta, x, y, x_scale, x_center, extra_var, mask, monomials):
     )
     loo = alpha / kinv_diag
     fit = _cov(theta, x, x, x_scale, x_center, monomials) @ alpha
-    n_eff = jnp.sum(mask)
-    nlml = (
-        0.5 * (y * mask) @ alpha
-        + jnp.sum(jnp.log(jnp.diag(chol)))
-        + 0.5 * n_eff * jnp.log(2.0 * jnp.pi)
-    )
+    nlml = _conditional_nlml(theta, x, y, x_scale, x_center, monomials, extra_var, mask, noisy)
     return chol, alpha, loo, fit, nlml
 
 
@@ -406,7 +472,7 @@ def _draw_samples(
         jax.random.normal(k3, (n_samples, n_features)) * jnp.exp(log_s) * jnp.sqrt(2.0 / n_features)
     )
     beta = jax.random.normal(k4, (n_samples, m)) * jnp.exp(log_t)
-    noise_sd = jnp.sqrt(jnp.exp(2.0 * log_n) + extra_var)
+    noise_sd = jnp.sqrt(jnp.exp(2.0 * log_n) * state.noisy + extra_var)
     eps = jax.random.normal(k5, (n_samples, state.x.shape[0])) * noise_sd
     prior_at_x = jax.vmap(lambda f, p, w, b: _prior_sample_eval(state, f, p, w, b, state.x))(
         freq, phase, weight, beta
@@ -416,17 +482,39 @@ def _draw_samples(
     return GPSamples(freq=freq, phase=phase, weight=weight, beta=beta, v=v)
 
 
+def input_spacing(u: np.ndarray, pseudo: np.ndarray | None = None) -> float:
+    """Median distance from a measured input to its nearest other input (scaled units).
+
+    The lower bound of every length scale (module docstring, "Length-scale floor"): at
+    ``ℓ_d ≥`` this spacing a typical measurement keeps a prior correlation of at least
+    ``e^{-1/2}`` with its nearest neighbour, so the squared-exponential part cannot act as
+    independent noise.
+    ``pseudo`` rows count as neighbours but not as measurements; duplicates are skipped.
+    """
+    u = np.asarray(u, dtype=float)
+    meas = np.ones(u.shape[0], dtype=bool) if pseudo is None else ~np.asarray(pseudo, bool)
+    if u.shape[0] < 2 or not meas.any():
+        return 0.0
+    dist = np.sqrt(np.sum((u[meas, None, :] - u[None, :, :]) ** 2, axis=-1))
+    dist[dist <= 0.0] = np.inf  # itself and exact duplicates
+    nearest = dist.min(axis=1)
+    nearest = nearest[np.isfinite(nearest)]
+    return float(np.median(nearest)) if nearest.size else 0.0
+
+
 def padded_args(
     x: np.ndarray,
     y_scaled: np.ndarray,
     extra_var_scaled: np.ndarray,
     x_scale: np.ndarray,
     x_center: np.ndarray,
+    pseudo: np.ndarray | None = None,
 ) -> tuple[Array, ...]:
-    """``(x, y, x_scale, x_center, extra_var, mask)`` padded to a bucket size.
+    """``(x, y, x_scale, x_center, extra_var, mask, noisy)`` padded to a bucket size.
 
     Padded rows are masked: their block of ``K_y`` is the identity and their targets 0,
     which leaves the marginal likelihood, the LOO criterion and their gradients unchanged.
+    ``noisy`` is ``mask`` without the ``pseudo`` rows (pseudo-observations).
     """
     n, d = x.shape
     n_pad = bucket(n)
@@ -439,4 +527,7 @@ def padded_args(
     evp[:n] = extra_var_scaled
     mask = np.zeros(n_pad)
     mask[:n] = 1.0
-    return tuple(jnp.asarray(a) for a in (xp, yp, x_scale, x_center, evp, mask))
+    noisy = mask.copy()
+    if pseudo is not None:
+        noisy[:n] = np.where(np.asarray(pseudo, dtype=bool), 0.0, 1.0)
+    return tuple(jnp.asarray(a) for a in (xp, yp, x_scale, x_center, evp, mask, noisy))

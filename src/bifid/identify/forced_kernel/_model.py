@@ -201,10 +201,10 @@ class ForcedKernelModel(IdentifiedModel):
         gamma = kappa * fo
         gp_a = self._gp(self.a_basis)
         b_fit = np.asarray(gp_b.predict(x)) + omega_c
-        samples = a_samples(
+        xa, ya, pseudo = a_samples(
             x, gamma, psi, b_fit, target=self.a_target, n_pseudo=self.n_pseudo, notes=notes
         )
-        gp_a.fit(*samples, x_scale=np.array([np.std(rho), np.std(om)]))
+        gp_a.fit(xa, ya, pseudo=pseudo, x_scale=np.array([np.std(rho), np.std(om)]))
         gp_phi = None
         if self.observation:
             gp_phi = fit_observation(
