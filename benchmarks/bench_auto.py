@@ -381,6 +381,10 @@ def compare_orbits(
         pairs, left = match([p for p, _ in orb["cycle_folds"]], [c["param"] for c in cfs])
         rows += point_rows(demo, label, "cycle LP", pairs)
         notes += missed_folds(label, orb, pairs, every)
+        notes += [
+            f"{label}: AUTO's {kind} at {v:g} (period {t:g}) is on another branch: {why}"
+            for kind, v, t, why in orb.get("other_branch", ())
+        ]
         extra += [(label, "cycle LP", v) for v in left if "cycle_fold" in orb["detect"]]
         for s in data.get("secondary", []):
             if s.get("branch") != b or along(orbits, s["param"], 0.0) >= n:

@@ -10,6 +10,17 @@ ILP=1; nu from -0.9 to -0.4) and ``tor.auto`` (the orbits of the first Hopf poin
 steps: the branch is compared up to AUTO's last period). The torus and period-doubling
 points of the demo lie on a branch that bifurcates from this one (branch switching), which
 bifid does not do.
+
+The orbits born at the Hopf point are symmetric, ``u(t + T/2) = -u(t)`` (the field is odd).
+Just past the cycle fold at ``nu = -0.799899`` a branch of non-symmetric orbits leaves them at
+a symmetry-breaking cycle branch point (``nu = -0.7998991433``, ``T = 39.381419``), and the
+demo's run (NTST = 25) moves onto it without reporting the branch point: its last cycle LP,
+``(-0.796906, 42.2879)``, is a fold of the non-symmetric orbits (``other_branch`` below).
+bifid stays on the symmetric branch, so the comparison stops at that branch point. Checked
+independently by multiple shooting (SciPy DOP853, rtol 1e-11, 40 and 80 segments): the
+symmetric branch's next fold is at ``(-0.7969090553, 49.356691)`` (bifid's), the
+non-symmetric branch's at ``(-0.7969060628, 42.287508)`` (AUTO's), and the demo rerun with
+NTST = 30 to 100 reports the branch point and then bifid's fold.
 """
 
 import jax.numpy as jnp
@@ -66,13 +77,23 @@ AUTO_RUNS = [
             {
                 "hopf": -0.589337,
                 "detect": ("cycle_fold", "period_doubling", "torus", "branch_point"),
-                "stop": {"max_period": 42.6650},
+                # AUTO leaves the symmetric orbits at their branch point (docstring)
+                "stop": {"period": 39.3814},
                 "cycle_folds": (
                     (-0.584335, 8.42647),
                     (-0.832514, 19.4158),
                     (-0.787590, 29.3732),
                     (-0.799899, 39.3706),
-                    (-0.796906, 42.2879),
+                ),
+                "other_branch": (
+                    (
+                        "cycle LP",
+                        -0.796906,
+                        42.2879,
+                        "a fold of the non-symmetric orbits AUTO switches to at the "
+                        "unreported branch point (-0.799899, period 39.381); shooting: "
+                        "(-0.7969060628, 42.287508)",
+                    ),
                 ),
                 "branch_points": (-0.587029, -0.832438),
                 "points": (),
