@@ -23,16 +23,17 @@ Kernel method (forced systems, thesis ch. 6): the first-order averaged hardening
 oscillator, ``a(ρ) = −cρ``, ``b(ρ) = ω₀ + kρ²``, ``Γ = κF`` (c = 0.0015, k = 0.0005,
 ω₀ = 1, κ = 0.5, known), whose FRC is explicit in the phase ψ: ``ρ = Γ sin ψ / c``,
 ``Ω = b(ρ) + Γ cos ψ / ρ``. Training: two FRCs (F = 0.007, 0.01, 16 points each) with
-relative amplitude noise and phase noise (radians) of the stated size; prediction: the FRC
-at the untrained F = 0.0085 with ``predict_diagram(level=...)`` (posterior samples and the
-leave-one-out jackknife, ``docs/uncertainty.md``); quantities: both folds' Ω, the peak's Ω
-and amplitude. Cases: 1 % noise, and 0.5 % and 2 %. The same quantities on two ODEs, as
-``bifid fit forced --selection loo`` fits them from records (amplitude, phase, time
-series): the ``duffing`` system (ζ = 0.01, γ = 0.5) trained on its FRCs at F = 0.01 and
-0.02 and predicted at F = 0.015, and ``shaw_pierre`` trained at F = 0.007 and 0.01 and
-predicted at F = 0.0085; 16 points per FRC spread by arclength (stable and unstable), with
-relative amplitude noise and phase noise of the stated size; training FRCs and truth (folds
-located by continuation, peak) from ``bench_forced_kernel.py``'s continuation helpers.
+relative amplitude noise and phase noise (radians) of the stated size, hyperparameters by
+the default marginal likelihood; prediction: the FRC at the untrained F = 0.0085 with
+``predict_diagram(level=...)`` (posterior samples and the leave-one-out jackknife,
+``docs/uncertainty.md``); quantities: both folds' Ω, the peak's Ω and amplitude. Cases:
+1 % noise, and 0.5 % and 2 %. The same quantities on two ODEs, as ``bifid fit forced
+--selection loo`` fits them from records (amplitude, phase, time series): the ``duffing``
+system (ζ = 0.01, γ = 0.5) trained on its FRCs at F = 0.01 and 0.02 and predicted at
+F = 0.015, and ``shaw_pierre`` trained at F = 0.007 and 0.01 and predicted at F = 0.0085;
+16 points per FRC spread by arclength (stable and unstable), with relative amplitude noise
+and phase noise of the stated size; training FRCs and truth (folds located by
+continuation, peak) from ``bench_forced_kernel.py``'s continuation helpers.
 Cases: Duffing at 1 %, Shaw–Pierre at 1 %, 2 % and 0.5 % (``--ode-reps`` each).
 
 Hybrid method (thesis ch. 5): the same ``hopf`` system (``omega0 = 1``, ``q5 = 1``) and the

@@ -225,7 +225,7 @@ def kernel_fit(seed: int, noise: float = 0.01):
         cols["forcing"].append(np.full(psi.size, f))
         cols["amplitude"].append(rho * (1 + noise * rng.standard_normal(psi.size)))
         cols["phase"].append(np.pi - psi + noise * rng.standard_normal(psi.size))
-    model = ForcedKernelModel(forcing_scale=KKAPPA, selection="loo", observation=False, seed=seed)
+    model = ForcedKernelModel(forcing_scale=KKAPPA, selection="ml", observation=False, seed=seed)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")
         return model.fit(**{k: np.concatenate(v) for k, v in cols.items()})
