@@ -243,7 +243,7 @@ def _sets(f2: float, f3: float) -> list[str]:
     return (
         []
         if (f2, f3) == (1.0, 1.0)
-        else ["--set", f"ka2={KA2 * f2:g}", "--set", f"ka3={KA3 * f3:g}"]
+        else ["--set", f"ka2={KA2 * f2:.10g}", "--set", f"ka3={KA3 * f3:.10g}"]
     )
 
 
@@ -262,25 +262,39 @@ def _gap(points: list[dict]) -> float:
     return float(np.max(np.hypot(du, dh)))
 
 
+#: (ka2, ka3) factors: (START, LOW) of ``--range``. LOW just below the cycle fold. START
+#: 17.5 m/s, where both LCOs exist and the large one is stable; not for (1.25, 0.75): its
+#: large LCO is stable only from the fold (12.85) to U ≈ 14.9 (a Floquet multiplier
+#: leaves the unit circle there; 3.0 at 17.5), and swings in pitch towards a saddle
+#: equilibrium at α = -0.090 behind which lies a buckled pitch equilibrium
+#: (α = -0.160): at 17.5 neither the scan nor a controller designed on the model holds it,
+#: and a transient near it drops the rig into the buckled state. 14.5 m/s has both LCOs,
+#: the large one stable, as 17.5 has for the others.
+CONTINUATION_RANGES = {
+    (1.0, 1.0): (17.5, 14.0),
+    (1.0, 1.25): (17.5, 16.0),
+    (0.75, 0.75): (17.5, 16.8),
+    (1.25, 0.75): (14.5, 12.0),
+}
+
+
 def continuation(tmp: Path) -> list[str]:
     md = [
         "### `--continuation`: both LCO branches round the cycle fold",
         "",
-        "`bifid cbc flutter --protocol ppcbc --continuation 40 --range 17.5 LOW "
-        "--noise-fraction 0.01 [--set ka2=… --set ka3=…]`: the scan at 17.5 m/s, then "
+        "`bifid cbc flutter --protocol ppcbc --continuation 40 --range START LOW "
+        "--noise-fraction 0.01 [--set ka2=… --set ka3=…]`: the scan at START, then "
         "each LCO found there followed by continuation of the measured zero problem "
-        "towards LOW (below the cycle fold) and back.",
+        "towards LOW (below the cycle fold) and back. START is 17.5 m/s except for "
+        "(1.25, 0.75), whose large LCO is stable only between its cycle fold and "
+        "U ≈ 14.9 m/s (beyond, it swings towards a saddle equilibrium of pitch that "
+        "guards a buckled one): 14.5 m/s.",
         "",
-        "| ka2, ka3 (× default) | LOW | points | unstable / stable | cycle fold: CBC | "
-        "largest step (of the branch) | max error | failures | wall |",
-        "|---|---|---|---|---|---|---|---|---|",
+        "| ka2, ka3 (× default) | START, LOW | points | unstable / stable | cycle fold: CBC | "
+        "largest step (of the branch) | max error, same U | max distance | failures | wall |",
+        "|---|---|---|---|---|---|---|---|---|---|",
     ]
-    for f2, f3 in ((1.0, 1.0), (1.0, 1.25), (0.75, 0.75), (1.25, 0.75)):
-        low = (
-            14.0
-            if (f2, f3) == (1.0, 1.0)
-            else {(1.0, 1.25): 16.0, (0.75, 0.75): 16.8, (1.25, 0.75): 12.0}[(f2, f3)]
-        )
+    for (f2, f3), (start, low) in CONTINUATION_RANGES.items():
         out = tmp / f"cont_{f2}_{f3}.nc"
         cmd = [
             "flutter",
@@ -289,7 +303,7 @@ def continuation(tmp: Path) -> list[str]:
             "--continuation",
             "40",
             "--range",
-            "17.5",
+            f"{start:g}",
             f"{low:g}",
             "--noise-fraction",
             "0.01",
@@ -302,7 +316,7 @@ def continuation(tmp: Path) -> list[str]:
         ]
         d, wall, _cpu, _rc = cli(cmd)
         over = {} if (f2, f3) == (1.0, 1.0) else {"ka2": KA2 * f2, "ka3": KA3 * f3}
-        curve = compare(d["points"], over, low, 17.5)
+        curve = compare(d["points"], over, low, start)
         cont = d["points"]
         n_u = sum(p["stable"] is False for p in cont)
         n_s = sum(p["stable"] is True for p in cont)
@@ -311,7 +325,7 @@ def continuation(tmp: Path) -> list[str]:
         # away from the cycle fold (0.1 m/s), where an orbit at a fixed U is well defined
         away = [p for p in cont if all(abs(p["param"] - u) > 0.1 for u in fold_u)]
         md.append(
-            f"| {f2:g}, {f3:g} | {low:g} | {len(cont)} | {n_u} / {n_s} | {folds} | "
+            f"| {f2:g}, {f3:g} | {start:g}, {low:g} | {len(cont)} | {n_u} / {n_s} | {folds} | "
             f"{_gap(cont):.3f} | {100 * max(map(_err, away), default=np.nan):.2f} % "
             f"({len(away)}) | {100 * curve_distance(cont, curve):.2f} % | "
             f"{len(d.get('failures', []))} | {wall:.0f} s |"

@@ -16,7 +16,8 @@ read off the measured curve). Step control: the driver halves a step that fails;
 whose secant turns by more than ``max_turn`` degrees halves the next one, one that turns
 by less than half that and converged easily grows it, so folds are resolved without gaps.
 
-**Retries.** A step that fails even at the smallest arclength step, or trips the rig, is
+**Retries.** A step that fails even at the smallest arclength step, or trips the rig (or,
+in PP-CBC, is noise-limited: next to a cycle fold the Jacobian estimate decides), is
 retried before a failure is recorded: (1) back to the last recorded point (the rig
 re-settled there, the oscillation restarted from rest when the rig tripped, a fresh
 finite-difference Jacobian) with twice the smallest step; (2) the same with the
@@ -293,8 +294,10 @@ class Campaign:
         b: int,
         save: Callable[[_Branch], dict[str, Any]],
         recover: Callable[[_Branch, bool], None],
+        after: Callable[[_Branch, Any], None] | None = None,
     ) -> None:
-        """Step ``br`` until it ends, recording each point and checkpointing after it."""
+        """Step ``br`` until it ends, recording each point and checkpointing after it
+        (``after(br, evaluation)`` first: e.g. the problem's frame moved to the point)."""
         opts = br.driver.options
         max_turn = float(self.spec.options.get("max_turn", 20.0))
         br.corrector.follow_secant = True
@@ -323,6 +326,8 @@ class Campaign:
                 br.state = self._step_control(s.state, before, max_turn, opts, br.problem.weights)
                 br.retries = 0
                 br.problem.rescale(br.state.y)
+                if after is not None:
+                    after(br, s.point.info["evaluation"])
                 self.record(pt, b, write=False)
                 self.cursor["branch"] = save(br)
                 self.checkpoint()
@@ -376,7 +381,11 @@ class Campaign:
         """The retry policy (module docstring); False when the branch must end."""
         reason = br.corrector.last_reason or br.state.message
         where = {self.spec.param: float(br.state.y[br.driver.param_index])}
-        if isinstance(reason, NoiseLimited) or br.retries >= 2:
+        # (a PP-CBC point next to a cycle fold can be noise-limited with a poor Jacobian
+        # estimate: the retry's fresh one, and its raised gains, which damp the random
+        # motion of the nearly neutral mode there, may resolve it)
+        final = isinstance(reason, NoiseLimited) and self.spec.protocol != "ppcbc"
+        if final or br.retries >= 2:
             self.fail(where, reason or "the corrector failed", retries=br.retries)
             br.state.status = "failed"
             br.state.message = str(reason)

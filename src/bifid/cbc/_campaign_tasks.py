@@ -283,6 +283,13 @@ def _ppcbc_continuation(camp: Campaign) -> None:
                         "amp": a,
                     }
                 )
+        # an LCO only held from the model's orbit (the scan did not converge to it) has
+        # no scan to continue from: a failure unless another branch reaches it
+        camp.cursor["held"] = [
+            {"y": [float(pt.param)], "amp": float(pt.amplitude[x1])}
+            for pt in res.points[len(res.found) :]
+            if all(abs(s["amp"] - pt.amplitude[x1]) > 0.02 * pt.amplitude[x1] for s in starts)
+        ]
         camp.cursor["starts"] = starts
         camp.cursor["task"] = 1
         camp.checkpoint()
@@ -298,6 +305,13 @@ def _ppcbc_continuation(camp: Campaign) -> None:
         camp.cursor["task"] = k + 2
         camp.cursor["branch"] = None
         camp.checkpoint()
+    for h in camp.cursor.pop("held", None) or []:
+        if not _covered(camp, h):
+            camp.fail(
+                {spec.param: float(h["y"][-1])},
+                f"the LCO of amplitude {h['amp']:.4g} was held from the model's orbit, not "
+                "found by the scan, and no branch reached it (no scan to continue from)",
+            )
 
 
 def _covered(camp: Campaign, start: dict[str, Any]) -> bool:
@@ -354,7 +368,10 @@ def _ppcbc_branch(camp: Campaign, start: dict[str, Any], saved: dict[str, Any] |
     )
 
     def point(ev, evaluations: int):
-        return make_point(camp.rig, problem.opts, problem.family, ev, evaluations, "continuation")
+        pt = make_point(camp.rig, problem.opts, problem.family, ev, evaluations, "continuation")
+        if pt.stable is False:
+            _relock(camp, problem, float(ev.y[0]), float(pt.amplitude[problem.opts.x1]))
+        return pt
 
     if saved is not None:
         b = int(saved["branch"])
@@ -365,7 +382,10 @@ def _ppcbc_branch(camp: Campaign, start: dict[str, Any], saved: dict[str, Any] |
             bootstrap(camp.rig, opts, 0.8 * a0, problem.omega, a_max=a0)
     else:
         b = camp.new_branch("continuation")
-        corrector.jacobian = np.asarray(start["jacobian"], float)
+        # (a zero the scan's secant found has no Jacobian: a fresh one at the start)
+        jac = None if start.get("jacobian") is None else np.asarray(start["jacobian"], float)
+        ok = jac is not None and jac.shape == (problem.n, problem.n + 1)
+        corrector.jacobian = jac if ok else None
         camp.seed_rig()
         # from whatever the rig held last (another LCO, or rest after a trip): the
         # oscillation started near this LCO first
@@ -389,7 +409,7 @@ def _ppcbc_branch(camp: Campaign, start: dict[str, Any], saved: dict[str, Any] |
 
     def recover(br: _Branch, raise_gains: bool) -> None:
         if raise_gains:
-            new = raised(br.problem.opts)
+            new = _stronger(camp, br.problem.opts, float(br.state.y[-1]))
             br.problem.opts = new
             br.problem.family = br.problem.family.with_options(new)
             camp.cursor["gains"] = {**_saved_controller(camp), "kp": new.kp, "kd": new.kd}
@@ -404,7 +424,86 @@ def _ppcbc_branch(camp: Campaign, start: dict[str, Any], saved: dict[str, Any] |
         br.corrector.bootstrap(ev)
 
     camp.cursor["branch"] = _save(br, {"branch": b})
-    camp.follow(br, b, lambda x: _save(x, {"branch": b}), recover)
+    camp.follow(br, b, lambda x: _save(x, {"branch": b}), recover, _reframe)
+
+
+def _stronger(camp: Campaign, opts: PPCBCOptions, value: float) -> PPCBCOptions:
+    """The controller of a branch's last retry at ``value``: the one designed on the
+    model's cycles there (:func:`~bifid.cbc._retry.other_controllers`, first) where it
+    acts in the branch's plane (the target's unknowns keep their meaning), else the
+    gains raised."""
+    other = next(iter(other_controllers(camp, opts, value)), None)
+    if other is not None and other.get("x2", opts.x2) == opts.x2:
+        return with_gains(opts, other)
+    return raised(opts)
+
+
+REFRAME_SHAPE = 0.3  #: harmonics / a0* of a polar target (~0.1 in its orbit's frame)
+
+
+def _reframe(br: _Branch, ev) -> None:
+    """Move a polar target's frame to the orbit just measured once the branch has left
+    the frame's orbit (harmonics above :data:`REFRAME_SHAPE` of ``a0*``; e.g. past a
+    cycle fold, where ``r*(φ)`` of few harmonics cannot follow the orbit: a zero of the
+    control error would be an invasively controlled orbit). State and Broyden Jacobian
+    are carried over by the conversion of the unknowns (``TargetFamily.convert``) and
+    its linearisation ``C``: ``J ← [C J_c C⁻¹, C J_λ]``; no rig time is spent."""
+    prob = br.problem
+    old = prob.family
+    y, n = br.state.y, prob.n
+    if not old.polar or np.linalg.norm(y[1:n]) <= REFRAME_SHAPE * abs(float(y[0])):
+        return
+    try:
+        new = old.reframed(ev.info.m, prob.omega)
+    except ConvergenceError:
+        return
+    h = 1e-6 * abs(float(y[0]))
+    C = np.empty((n, n))
+    for j in range(n):
+        e = np.zeros(n)
+        e[j] = h
+        C[:, j] = (old.convert(y[:n] + e, new) - old.convert(y[:n] - e, new)) / (2.0 * h)
+    try:
+        C_inv = np.linalg.inv(C)
+    except np.linalg.LinAlgError:
+        return
+
+    def convert(v: np.ndarray) -> np.ndarray:
+        return np.concatenate([old.convert(v[:n], new), v[n:]])
+
+    st, cor = br.state, br.corrector
+    t = np.concatenate([C @ st.t[:n], st.t[n:]])
+    t = t / math.sqrt(float(t @ (prob.weights * t)))
+    y_prev = None if st.y_prev is None else convert(st.y_prev)
+    br.state = replace(st, y=convert(y), y_prev=y_prev, t=t)
+    if cor.jacobian is not None and cor.jacobian.shape == (n, n + 1):
+        J = cor.jacobian
+        cor.jacobian = np.hstack([C @ J[:, :n] @ C_inv, C @ J[:, n:]])
+    if cor.y_accepted is not None:
+        cor.y_accepted = convert(cor.y_accepted)
+    prob.family = new
+    prob.rescale(br.state.y)
+
+
+RELOCK_FRACTION = 0.5  #: of an unstable LCO's amplitude after its switch-off test
+
+
+def _relock(camp: Campaign, problem: PPCBCProblem, a_star: float, amplitude: float) -> None:
+    """After the switch-off test of an unstable LCO (the rig left it; a controller in a
+    plane that cannot self-excite, e.g. heave and pitch of flutter, does not bring it
+    back from near rest): below :data:`RELOCK_FRACTION` of its amplitude over two
+    periods, the oscillation is started again (:func:`bootstrap`, as after a trip).
+    A failure here is left to the next step's retry policy."""
+    rig, opts = camp.rig, problem.opts
+    m = rig.run(2.0 * 2.0 * math.pi / problem.omega)
+    x1 = m.signal(opts.x1)
+    tail = x1[-max(2, round(2.0 * math.pi / problem.omega * rig.sample_rate)) :]
+    if m.status == "ok" and 0.5 * float(np.ptp(tail)) >= RELOCK_FRACTION * amplitude:
+        return
+    try:
+        bootstrap(rig, opts, 0.8 * a_star, problem.omega, a_max=a_star)
+    except ConvergenceError:
+        return
 
 
 # -------------------------------------------------------------------------------- forced

@@ -15,10 +15,13 @@
   (:func:`model_cycles`: the Hopf point searched for in the range widened on both sides
   by its width or half its values, whichever is larger, four times more where that
   window holds none) give the frequency guess, the scan's amplitude grid (half the
-  smallest to 1.15 times the largest first-harmonic amplitude of ``x1``, spaced at most
+  smallest, of the cycles inside the range and at its ends, to 1.15 times the largest
+  first-harmonic amplitude of ``x1``, spaced at most
   half the smallest distance between coexisting cycles; the scan goes on past it while
   an orbit lies above) and the noise reference (the smallest centred amplitude per
-  output). Where some of those cycles are unstable, the gains are, among the candidates
+  output of the LCOs inside the range, those at its ends included; not the cycles
+  beyond it, which can reach the Hopf point). Where some of those cycles are unstable,
+  the gains are, among the candidates
   ``kp ∈ {0, 0.3, 1} ω²/b``, ``kd ∈ {0.1, 0.3, 1, 3} ω/b`` on ``(x1, ẋ1)``, the
   gentlest (smallest in those units) whose largest non-trivial *controlled* Floquet
   multiplier over three cycles of the range (smallest, middle, largest) is at most
@@ -170,7 +173,9 @@ def derive(
     cycles = _cycles(system, p, param, param_range)
     if not cycles:
         return out
-    out.update(_from_cycles(system, cycles, x1))
+    # the LCOs at the range's ends
+    ends = [c for v in param_range for c in cycles_at(system, p, param, float(v), param_range)]
+    out.update(_from_cycles(system, cycles, x1, param_range, ends))
     unstable = any(not c[3] for c in cycles)
     if unstable and not {"kp", "kd"} <= given and not ({"x1", "x2"} & given):
         # only unstable cycles need gains that stabilise them (the search integrates the
@@ -268,15 +273,26 @@ def _cycles(
     return out
 
 
-def _from_cycles(system: System, cycles, x1: str) -> dict[str, Any]:
+def _from_cycles(
+    system: System, cycles, x1: str, param_range: tuple[float, float], ends=()
+) -> dict[str, Any]:
+    lo, hi = sorted(float(v) for v in param_range)
     i1 = system.state_index(x1)
     first = []
     for lam, orbit, *_ in cycles:
         c = np.fft.rfft(orbit[:, i1]) / orbit.shape[0]
         first.append((lam, 2.0 * abs(c[1])))
     amps = np.array([a for _, a in first])
-    # (a window that reaches the Hopf point holds cycles of vanishing amplitude)
-    lo_a = 0.5 * float(np.min(amps[amps > 0.01 * np.max(amps)]))
+
+    def amp(orbit: np.ndarray) -> float:
+        return 2.0 * abs(np.fft.rfft(orbit[:, i1])[1]) / orbit.shape[0]
+
+    # the cycles of the range itself, those at its ends included, where there are any
+    # (the cycles beyond its ends, taken for a narrow range, can reach the Hopf point:
+    # vanishing amplitudes would start the grid, and refer relative noise, at nothing)
+    real = [c for c in [*cycles, *ends] if amp(c[1]) > 0.01 * np.max(amps)]
+    inside = [c for c in real if lo <= c[0] <= hi] or real
+    lo_a = 0.5 * min(amp(c[1]) for c in inside)
     hi_a = 1.15 * float(np.max(amps))
     # coexisting cycles: the smallest distance between amplitudes at nearby parameters
     lams = np.array([lam for lam, _ in first])
@@ -290,10 +306,10 @@ def _from_cycles(system: System, cycles, x1: str) -> dict[str, Any]:
     n = 16
     if gaps:
         n = int(min(max(math.ceil((hi_a - lo_a) / (0.5 * min(gaps))) + 1, 8), 32))
-    reference = {}
+    reference = {}  # the smallest LCO of the range
     for name in system.states:
         i = system.state_index(name)
-        reference[name] = min(float(np.max(np.abs(c[1][:, i] - c[1][:, i].mean()))) for c in cycles)
+        reference[name] = min(float(np.max(np.abs(c[1][:, i] - c[1][:, i].mean()))) for c in inside)
     periods = np.array([c[2] for c in cycles])
     return {
         "amplitude_range": (lo_a, hi_a),

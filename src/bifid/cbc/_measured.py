@@ -131,6 +131,9 @@ class MeasuredProblem(abc.ABC):
     #: the residual worse, or a stall (a singular estimate is always refreshed, twice)
     refresh_limit: int = 2
     jacobian: np.ndarray | None = None  # the corrector's current estimate of G_y
+    #: the constraint row of the current correction (``row · y = c``: fixed parameter,
+    #: or the arclength), set by the corrector
+    constraint: np.ndarray | None = None
 
     @property
     def metric(self) -> np.ndarray:
@@ -360,6 +363,7 @@ class BroydenCorrector(AbstractCorrector):
         after ``problem.refresh_limit`` refreshes, the trust radius halved; a residual
         that has not halved in four iterations also refreshes the Jacobian."""
         w = self.problem.metric
+        self.problem.constraint = row
         self.problem.begin()
         if self.jacobian is not None and self.y_accepted is not None:
             if self.y_accepted.shape == y_pred.shape:

@@ -361,23 +361,38 @@ class PPCBCProblem(MeasuredProblem):
     def _periods(self, resp: Response) -> float:
         return len(resp.m) * resp.omega / (2.0 * math.pi * resp.m.sample_rate)
 
-    def zero_noise(self, ev: Evaluation) -> float:
-        """Standard error of the zero's ``a0*`` relative to ``a0*``: the noise of ``G``
-        (its floors) carried through the corrector's Jacobian at fixed ``λ`` (0 without
-        a Jacobian)."""
+    def zero_errors(self, ev: Evaluation) -> tuple[float, float]:
+        """Standard errors of the zero's ``a0*`` and ``λ``, relative to ``a0*`` and to
+        ``max(|λ|, s_λ)`` (``s_λ`` the parameter's scale): the noise of ``G`` (its floors)
+        carried through the corrector's Jacobian bordered by its constraint row
+        (:attr:`~bifid.cbc._measured.MeasuredProblem.constraint`; fixed ``λ``, whose
+        error is then 0, without one); zeros without a Jacobian.
+
+        At fixed ``λ`` the error of ``a0*`` grows without bound at a cycle fold (``G_y``
+        at fixed ``λ`` is singular there); the arclength row keeps the bordered system
+        regular through the fold, where the point's error lies along the normal to the
+        branch, mostly in ``λ``."""
         J = self.jacobian
         if J is None or J.shape != (self.n, self.n + 1):
-            return 0.0
-        e_p = np.zeros((1, self.n + 1))
-        e_p[0, -1] = 1.0
+            return 0.0, 0.0
+        row = self.constraint
+        if row is None or row.shape != (self.n + 1,):
+            row = np.zeros(self.n + 1)
+            row[-1] = 1.0
         with np.errstate(all="ignore"):
             try:
-                inv_row = np.linalg.solve(np.vstack([J, e_p]).T, np.eye(self.n + 1)[0])
+                inv = np.linalg.solve(np.vstack([J, row[None, :]]), np.eye(self.n + 1)[:, : self.n])
             except np.linalg.LinAlgError:
-                return math.inf
+                return math.inf, math.inf
         # (the components' noises independent)
-        noise = float(np.linalg.norm(inv_row[: self.n] * ev.floor)) / FLOOR_SIGMAS
-        return noise / max(abs(float(ev.y[0])), 1e-300) if math.isfinite(noise) else math.inf
+        s_a, s_p = (float(np.linalg.norm(inv[i] * ev.floor)) / FLOOR_SIGMAS for i in (0, -1))
+        e_a = s_a / max(abs(float(ev.y[0])), 1e-300)
+        e_p = s_p / max(abs(float(ev.y[-1])), self.param_scale)
+        return tuple(e if math.isfinite(e) else math.inf for e in (e_a, e_p))
+
+    def zero_noise(self, ev: Evaluation) -> float:
+        """The zero's relative standard error, ``hypot`` of :meth:`zero_errors`."""
+        return math.hypot(*self.zero_errors(ev))
 
     def precise(self, ev: Evaluation) -> bool:
         """The floor is below ``precision`` (of ``a0*``) and the zero's noise below
@@ -391,9 +406,11 @@ class PPCBCProblem(MeasuredProblem):
         return zero_ok and resp.floor <= self.opts.precision * abs(float(ev.y[0]))
 
     def imprecision(self, ev: Evaluation) -> str:
+        e_a, e_p = self.zero_errors(ev)
         return (
-            f"the zero's a0* has a standard error of {100 * self.zero_noise(ev):.2g} % (noise "
-            f"carried through the Jacobian; limit {100 * self.opts.zero_precision:g} "
+            f"the zero has a standard error of {100 * self.zero_noise(ev):.2g} % (a0* "
+            f"{100 * e_a:.2g} %, {self.param} {100 * e_p:.2g} %; noise carried through the "
+            f"Jacobian; limit {100 * self.opts.zero_precision:g} "
             f"%) at the longest record ({self.opts.max_extension:g} x measure_periods): the "
             "control error is too flat in the target's amplitude here (near a Hopf point) "
             "for the measurement noise"

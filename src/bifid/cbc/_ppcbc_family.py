@@ -348,7 +348,7 @@ def bootstrap(
     # noisy (x1, ẋ1) is noise): try twice and four times the amplitude (up to a_max)
     tries = [a for a in (a_start, 2.0 * a_start, 4.0 * a_start) if a_max is None or a <= a_max]
     tries = tries or [a_start]
-    k = 0
+    k, rested = 0, False
     while k < len(tries):
         a_try, k = tries[k], k + 1
         vec = np.array([a_try, aspect0, centre[0], centre[1]])
@@ -362,13 +362,19 @@ def bootstrap(
             ):
                 omega = r.omega
                 vec = np.concatenate([[a_try], r.vector[1:]])
+        off = abs(float(np.mean(r.m.signal(boot.x1))) - centre[0])
+        # the rig rests, or oscillates, away from the centre: about another equilibrium
+        # (e.g. a buckled state of a structure, or the buckled pitch of a flutter
+        # variant with a soft cubic stiffness), where the last orbit or a transient left
+        # it. A rig that can be brought to rest at its rest position (as its safety gate
+        # does) starts again from there, once
+        if (r.a0 <= 0.1 * a_try or off > 0.5 * a_try) and not rested and rig.rest():
+            rested, k = True, k - 1
+            continue
         if r.a0 > 0.1 * a_try:
             break
-        # the rig rests away from the centre (at another equilibrium, e.g. a buckled
-        # state of a structure with softening stiffness, where the last orbit left it):
-        # outside the ellipse the radial error damps, so once more with an ellipse round
-        # the centre that encloses the rig (inside, the radial error self-excites)
-        off = abs(float(np.mean(r.m.signal(boot.x1))) - centre[0])
+        # else: outside the ellipse the radial error damps, so once more with an ellipse
+        # round the centre that encloses the rig (inside, the radial error self-excites)
         big = 1.5 * off
         if k == len(tries) == 3 and off > a_try and (a_max is None or big <= a_max):
             tries.append(big)

@@ -10,8 +10,10 @@ A rig is something that can only be *pushed and measured*, like a laboratory rig
 - :meth:`AbstractRig.run` -- let time pass and return the sampled signals.
 
 The rig keeps its state between calls: there is no reset, so every change is followed
-by a real transient. CBC code in :mod:`bifid.cbc` uses nothing else, so a real rig only
-has to implement these methods (see ``docs/cbc.md``).
+by a real transient (:meth:`AbstractRig.rest`, where a rig offers it, only does what its
+safety gate does: the rig brought to rest at its rest position). CBC code in
+:mod:`bifid.cbc` uses nothing else, so a real rig only has to implement these methods
+(see ``docs/cbc.md``).
 """
 
 from __future__ import annotations
@@ -172,6 +174,12 @@ class AbstractRig(abc.ABC):
         """Restart the rig's measurement-noise stream from ``seed`` (a campaign seeds each
         point from its index, so that a resumed campaign measures exactly what an
         uninterrupted one would)."""
+
+    def rest(self) -> bool:
+        """Disarm the controller, switch the forcing off and bring the rig to rest at its
+        rest position, as its safety gate does (optional). Returns False when the rig
+        cannot (the default): then only the controller can move it."""
+        return False
 
     def describe(self) -> Mapping[str, Any]:
         """Settings worth recording with a dataset (JSON-able)."""

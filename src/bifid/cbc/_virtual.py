@@ -422,12 +422,18 @@ class VirtualRig(AbstractRig):
         )
         self._loop = None
 
-    def _trip(self) -> None:
-        """The safety gate: controller and forcing off, the rig at rest."""
+    def rest(self) -> bool:
+        """Controller and forcing off, the rig at rest (the equilibrium of the free system
+        that a solve of ``f(x, p) = 0`` from the initial state reaches), as after a trip."""
         self._set_state(rest_state(self.system, self._p, self._x0))
         self.set_controller(None)
         self._forcing_on = False
         self._gamma = 0.0
+        return True
+
+    def _trip(self) -> None:
+        """The safety gate: controller and forcing off, the rig at rest."""
+        self.rest()
         self.trips += 1
 
     def _draw_noise(self, n: int) -> np.ndarray:
