@@ -81,6 +81,10 @@ def lco_truth(
         except ConvergenceError:
             continue
         amp = centred_amplitudes(V)
+        if amp[i1] < 0.01 * a_meas:
+            # collapsed onto the equilibrium (next to a cycle fold the nearest orbit of
+            # the branch can lie outside Newton's basin): no truth for this point
+            continue
         pt["truth_amplitude"] = {s: float(amp[system.state_index(s)]) for s in pt["amplitude"]}
         pt["relative_error"] = {
             s: pt["amplitude"][s] / pt["truth_amplitude"][s] - 1.0 for s in pt["amplitude"]
