@@ -381,10 +381,7 @@ class Campaign:
         """The retry policy (module docstring); False when the branch must end."""
         reason = br.corrector.last_reason or br.state.message
         where = {self.spec.param: float(br.state.y[br.driver.param_index])}
-        # (a PP-CBC point next to a cycle fold can be noise-limited with a poor Jacobian
-        # estimate: the retry's fresh one, and its raised gains, which damp the random
-        # motion of the nearly neutral mode there, may resolve it)
-        final = isinstance(reason, NoiseLimited) and self.spec.protocol != "ppcbc"
+        final = isinstance(reason, NoiseLimited) and not br.problem.retry_noise_limited
         if final or br.retries >= 2:
             self.fail(where, reason or "the corrector failed", retries=br.retries)
             br.state.status = "failed"

@@ -278,15 +278,12 @@ def _from_cycles(
 ) -> dict[str, Any]:
     lo, hi = sorted(float(v) for v in param_range)
     i1 = system.state_index(x1)
-    first = []
-    for lam, orbit, *_ in cycles:
-        c = np.fft.rfft(orbit[:, i1]) / orbit.shape[0]
-        first.append((lam, 2.0 * abs(c[1])))
-    amps = np.array([a for _, a in first])
 
     def amp(orbit: np.ndarray) -> float:
+        """First-harmonic amplitude of ``x1``."""
         return 2.0 * abs(np.fft.rfft(orbit[:, i1])[1]) / orbit.shape[0]
 
+    amps = np.array([amp(c[1]) for c in cycles])
     # the cycles of the range itself, those at its ends included, where there are any
     # (the cycles beyond its ends, taken for a narrow range, can reach the Hopf point:
     # vanishing amplitudes would start the grid, and refer relative noise, at nothing)
@@ -295,7 +292,7 @@ def _from_cycles(
     lo_a = 0.5 * min(amp(c[1]) for c in inside)
     hi_a = 1.15 * float(np.max(amps))
     # coexisting cycles: the smallest distance between amplitudes at nearby parameters
-    lams = np.array([lam for lam, _ in first])
+    lams = np.array([c[0] for c in cycles])
     tol = 1e-3 * max(float(np.ptp(lams)), 1e-12)
     gaps = [
         abs(amps[i] - amps[j])

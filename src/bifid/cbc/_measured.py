@@ -130,6 +130,10 @@ class MeasuredProblem(abc.ABC):
     #: finite-difference refreshes of the Jacobian per correction after a step that made
     #: the residual worse, or a stall (a singular estimate is always refreshed, twice)
     refresh_limit: int = 2
+    #: a noise-limited point goes through the campaign's retry policy instead of failing
+    #: at once (PP-CBC: next to a cycle fold the Jacobian estimate decides, and a fresh
+    #: one with raised gains may resolve it)
+    retry_noise_limited: bool = False
     jacobian: np.ndarray | None = None  # the corrector's current estimate of G_y
     #: the constraint row of the current correction (``row · y = c``: fixed parameter,
     #: or the arclength), set by the corrector

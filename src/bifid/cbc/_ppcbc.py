@@ -306,6 +306,8 @@ class PPCBCProblem(MeasuredProblem):
         ``λ_ref``.
     """
 
+    retry_noise_limited = True
+
     def __init__(
         self,
         rig: AbstractRig,
