@@ -442,9 +442,9 @@ def report_kernel(run: dict, cfg: Settings) -> None:
         f"{cfg.reps} replications per 1 % case of the averaged oscillator, {cfg.ode_reps} per "
         "case of the ODEs. The intervals' shape (a scaled Student t of the standardised "
         f"errors, c = {ERROR_SCALE}, ν = {ERROR_DOF} for the special points, c = {BAND_SCALE}, "
-        f"ν = {BAND_DOF} for the amplitude along the FRC) was fitted on two sets of tuning "
+        f"ν = {BAND_DOF} for the amplitude along the FRC) was fitted on three sets of tuning "
         "seeds (`--tune-kernel`: the same cases on the seeds offset by "
-        f"{' and '.join(str(o) for o in KERNEL_TUNE_OFFSETS)}, rows in "
+        f"{', '.join(str(o) for o in KERNEL_TUNE_OFFSETS)}, rows in "
         "`results/calibration_kernel_tuning_rows.json`); these replications use seeds "
         f"offset by {KERNEL_SEED_OFFSET}.",
     ]
@@ -564,7 +564,7 @@ def main() -> None:
         ("--resume", "read back the replications in the rows files, run only new seeds"),
         ("--xla-one-thread", "XLA on one intra-op thread per process"),
         ("--tune-hybrid", "hybrid: tuning run of the calibration factor (seeds not offset)"),
-        ("--tune-kernel", "kernel: tuning runs of the intervals' shape (two other seed sets)"),
+        ("--tune-kernel", "kernel: tuning runs of the intervals' shape (three other seed sets)"),
     ):
         add(flag, action="store_true", help=text)
     args = ap.parse_args()
