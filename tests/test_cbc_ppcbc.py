@@ -151,6 +151,41 @@ def test_campaign_continues_round_the_fold(tmp_path):
     assert json.loads(saved.attrs["settings"])["campaign"]["protocol"] == "ppcbc"
 
 
+def test_default_step_follows_a_short_unstable_branch():
+    """Check the default arclength step of a continuation campaign scales with its range.
+
+    From μ = -0.2 to -0.26 the unstable LCO (r = 0.526 at the start) climbs to the cycle
+    fold (μ = -1/4, r = 1/√2) over a fraction of the range; with the default step the
+    campaign measures points along it (at least three between the start and the fold,
+    none more than a third of the way between them in one step), not one step across it.
+    """
+    r = ppcbc_campaign(
+        "hopf",
+        param="mu",
+        span=(-0.2, -0.26),
+        continuation=10,
+        overrides={"q5": 1.0},
+        amplitudes=[0.3, 0.45, 0.6],
+        param_scale=0.1,
+        rig_options={"sample_rate": 100.0},
+        options={
+            "stability": False,
+            "settle_periods": 5.0,
+            "measure_periods": 2.0,
+            "n_harmonics": 3,
+        },
+    )
+    assert not r.failures
+    cont = [p for p in r.points if p.branch == "continuation"]
+    rs = np.array([p.amplitude["u1"] for p in cont])
+    mus = np.array([p.param for p in cont])
+    np.testing.assert_allclose(rs**4 - rs**2 - mus, 0.0, atol=5e-3)
+    start = r_lco(-0.2, 1.0)[0]
+    unstable = np.r_[start, rs[rs < 1 / math.sqrt(2)]]
+    assert len(unstable) >= 4
+    assert np.max(np.diff(unstable)) <= (1 / math.sqrt(2) - start) / 3
+
+
 def test_destabilising_controller_is_reported_not_recorded(hopf):
     """Check a controller that cannot hold the orbit yields failures and no points."""
     rig = VirtualRig(hopf, {"mu": -0.1, "q5": 0.0}, sample_rate=100.0)

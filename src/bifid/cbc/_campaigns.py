@@ -104,7 +104,7 @@ def ppcbc_campaign(
     continuation: int = 0,
     overrides: Mapping[str, float] | None = None,
     amplitudes: Sequence[float] | None = None,
-    ds: float = 0.5,
+    ds: float | None = None,
     param_scale: float = 1.0,
     noise: float | Mapping[str, float] | None = None,
     noise_fraction: float | None = None,
@@ -138,7 +138,11 @@ def ppcbc_campaign(
     amplitudes : sequence of float, optional
         The scan's grid of target amplitudes (default: the system's CBC defaults).
     ds, param_scale : float
-        Arclength step (weighted norm) and the parameter's scale in it.
+        Arclength step (weighted norm: the parameter over ``param_scale``, the target
+        relative to the starting LCO) and the parameter's scale in it; default ``ds``:
+        a fifth of the range (in that norm), at most 0.5, so that a narrow range
+        (a short unstable branch between the start and the cycle fold) gets points
+        along it, not one step across it.
     noise, noise_fraction
         Measurement noise: absolute std (one number or per output), or a fraction of the
         system's reference amplitudes (the smallest limit cycle of the range). With noise
@@ -166,6 +170,8 @@ def ppcbc_campaign(
     s.param_vector(over)
     vals, span = _values_and_span(values, span, continuation)
     lo, hi = sorted(span)
+    if ds is None:
+        ds = min(0.5, 0.2 * (hi - lo) / abs(float(param_scale))) if hi > lo else 0.5
     dflt = defaults or defaults_for(
         s, over, param=param, param_range=(lo, hi), noise_reference=noise_fraction is not None
     )

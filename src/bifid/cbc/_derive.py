@@ -192,8 +192,9 @@ def model_cycles(
     ``[lo, hi]`` widened on both sides by ``span``, its width or half its values, whichever
     is larger (the Hopf point may lie well outside a campaign's range); a window without a
     Hopf point is widened four times, up to three times; steps of at most ``ds_max``
-    times ``span``. Returns ``(branches, span)`` (kept for the process: the same call again
-    returns the same branches).
+    times ``span``; Floquet multipliers from the collocation operator (nothing to compile:
+    a campaign's start-up). Returns ``(branches, span)`` (kept for the process: the same
+    call again returns the same branches).
 
     Raises
     ------
@@ -231,7 +232,14 @@ def _model_cycles(system: System, p, param: str, lo: float, hi: float, ds_max: f
             with warnings.catch_warnings():
                 warnings.simplefilter("ignore")
                 _, branches = continue_from_hopf(
-                    system, param, a, b, p=p, n_mesh=32, orbit_options=opts
+                    system,
+                    param,
+                    a,
+                    b,
+                    p=p,
+                    n_mesh=32,
+                    orbit_options=opts,
+                    stability="collocation",
                 )
         except (BifidInputError, ArithmeticError, ValueError, ConvergenceError) as exc:
             reason = str(exc)

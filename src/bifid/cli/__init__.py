@@ -61,7 +61,8 @@ def _enable_compilation_cache() -> None:
     path = os.environ.get("BIFID_JAX_CACHE", str(Path.home() / ".cache" / "bifid" / "jax"))
     if path:
         jax.config.update("jax_compilation_cache_dir", path)
-        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.5)
+        # every program: reading one back takes ~10 ms, compiling even a small one ~0.1 s
+        jax.config.update("jax_persistent_cache_min_compile_time_secs", 0.0)
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:

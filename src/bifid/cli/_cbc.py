@@ -149,7 +149,10 @@ def cbc_cmd(
             "continuation for this many points (0: scan at every value).",
         ),
     ] = 0,
-    ds: Annotated[float | None, Opt("--ds", help="Arclength step.")] = None,
+    ds: Annotated[
+        float | None,
+        Opt("--ds", help="Arclength step (PP-CBC: a fifth of the range, at most 0.5)."),
+    ] = None,
     omega: Annotated[
         float | None, Opt("--omega", help="scurve: Ω; ppcbc: frequency guess.")
     ] = None,
@@ -386,7 +389,7 @@ def _ppcbc(
         span=rng,
         continuation=continuation,
         amplitudes=grid,
-        ds=cli.option_value("--ds", ds, 0.5, gt=0),
+        ds=None if ds is None else cli.option_value("--ds", ds, gt=0),
         options=opts,
         noise_fraction=noise_fraction,
         defaults=dflt,

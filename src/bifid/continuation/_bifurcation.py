@@ -62,6 +62,7 @@ def bifurcation_diagram(
     eq_options: ContinuationOptions | None = None,
     orbit_options: ContinuationOptions | None = None,
     progress: Callable[[int, float], None] | None = None,
+    stability: str = "integrated",
     **diagram_kw: Any,
 ) -> Diagram:
     """Equilibria over ``[start, end]`` and the orbit branches of their Hopf points.
@@ -91,6 +92,9 @@ def bifurcation_diagram(
         Options of the equilibrium branch and of the orbit branches (defaults: steps
         scaled to the range, bounds of the range, ``max_steps``).
     progress : callable ``(n_points, param) -> None``, optional
+    stability : {"integrated", "collocation"}
+        Source of the orbits' Floquet multipliers (see
+        :func:`~bifid.continuation.hopf_orbits`; "collocation" compiles nothing).
     **diagram_kw
         Passed to :class:`~bifid.continuation.Diagram` (``settings``, ``warnings``, ...).
 
@@ -151,6 +155,7 @@ def bifurcation_diagram(
                         adapt=adapt,
                         options=orbit_options,
                         progress=progress,
+                        stability=stability,
                     )
                 )
             except LOCATION_ERRORS as exc:
@@ -171,6 +176,7 @@ def continue_from_hopf(
     eq_options: ContinuationOptions | None = None,
     orbit_options: ContinuationOptions | None = None,
     progress: Callable[[int, float], None] | None = None,
+    stability: str = "integrated",
 ) -> tuple[Branch, list[Branch]]:
     """Equilibria over ``[lo, hi]`` and the periodic-orbit branch of every Hopf point:
     :func:`bifurcation_diagram` as a pair ``(equilibria, orbit branches)``, for callers
@@ -195,6 +201,7 @@ def continue_from_hopf(
         eq_options=eq_options,
         orbit_options=orbit_options,
         progress=progress,
+        stability=stability,
     )
     eq, *branches = diagram.branches
     if not eq.special("hopf"):
