@@ -104,6 +104,15 @@ def test_near_hopf_lco_with_noise_is_accurate_or_refused(hopf, mu, kp):
             assert len(pts) == 1
 
 
+#: a PP-CBC continuation campaign on the subcritical ``hopf`` system (q5 = 1), kept short
+HOPF_CAMPAIGN = dict(
+    overrides={"q5": 1.0},
+    param_scale=0.1,
+    rig_options={"sample_rate": 100.0},
+    options={"stability": False, "settle_periods": 5.0, "measure_periods": 2.0, "n_harmonics": 3},
+)
+
+
 def test_campaign_continues_round_the_fold(tmp_path):
     """Check a continuation campaign (scan, then the measured zero problem on the
     continuation driver) through the cycle fold.
@@ -120,18 +129,10 @@ def test_campaign_continues_round_the_fold(tmp_path):
         param="mu",
         span=(-0.1, -0.3),
         continuation=8,
-        overrides={"q5": 1.0},
         amplitudes=[0.2, 0.35, 0.5],
         ds=0.5,
-        param_scale=0.1,
-        rig_options={"sample_rate": 100.0},
         out=out,
-        options={
-            "stability": False,
-            "settle_periods": 5.0,
-            "measure_periods": 2.0,
-            "n_harmonics": 3,
-        },
+        **HOPF_CAMPAIGN,
     )
     d = r.diagram.to_json()
     assert d["complete"] and not r.failures
@@ -164,16 +165,8 @@ def test_default_step_follows_a_short_unstable_branch():
         param="mu",
         span=(-0.2, -0.26),
         continuation=10,
-        overrides={"q5": 1.0},
         amplitudes=[0.3, 0.45, 0.6],
-        param_scale=0.1,
-        rig_options={"sample_rate": 100.0},
-        options={
-            "stability": False,
-            "settle_periods": 5.0,
-            "measure_periods": 2.0,
-            "n_harmonics": 3,
-        },
+        **HOPF_CAMPAIGN,
     )
     assert not r.failures
     cont = [p for p in r.points if p.branch == "continuation"]
