@@ -805,7 +805,7 @@ def figures(sp_figs: dict, du_figs: dict, em_figs: dict) -> list[str]:
     ax.set(
         xlabel="amplitude ρ",
         ylabel="95 % interval width in amplitude",
-        title="95 % intervals (posterior samples and jackknife)",
+        title="95 % interval widths",
     )
     ax.grid(alpha=0.3, which="both")
     ax.legend(fontsize=7)
