@@ -46,9 +46,10 @@ speed and amplitude of ``u1``. Flutter cases as for the mechanistic method, lear
 eight cycles as time series of heave and pitch (``_calibration_flutter.py``).
 
 Run: ``cd benchmarks && ../.venv/bin/python bench_calibration.py [--reps N | --quick]
-[--method mechanistic|kernel|hybrid] [--ode-reps M] [--flutter-reps K] [--jobs J]
-[--out DIR] [--resume]`` (``N`` replications of each 1 % case, ``N/2`` of the others;
-default 40, ``--quick`` 4; ``--jobs``: the replications of all the methods run in one pool
+[--method mechanistic|kernel|hybrid] [--ode-reps M] [--flutter-reps K] [--kernel-reps R]
+[--jobs J] [--out DIR] [--resume]`` (``N`` replications of each 1 % case, ``N/2`` of the
+others, default 40, ``--quick`` 4; ``R`` replaces ``N`` for the kernel's averaged
+oscillator, default ``N``; ``--jobs``: the replications of all the methods run in one pool
 of ``J`` worker processes, the longest first, default the number of cores up to 4, ``1``:
 in this process; ``--resume``: replications already in the rows files are read back, not
 rerun; ``--out``: directory of the rows files and ``calibration.json``, default
@@ -364,6 +365,22 @@ class Settings:
     ode_reps: int
     out: Path
     docs: bool
+    kernel_reps: int  # the kernel's replications per 1 % case of the averaged oscillator
+
+    def reps_of(self, method: str) -> int:
+        """Replications per 1 % case of ``method``."""
+        return self.kernel_reps if method == "kernel" else self.reps
+
+
+def cases_of(method: str, cfg: Settings, offset: int | None = None) -> list:
+    """:func:`method_cases` of ``method`` with its replications (``cfg.reps_of``, the flutter
+    or ODE cases ``cfg.flutter_reps`` / ``cfg.ode_reps``) as fractions of ``cfg.reps``, the
+    count the run scales every case by."""
+    sub = {"mechanistic": cfg.flutter_reps, "hybrid": cfg.flutter_reps, "kernel": cfg.ode_reps}
+    reps = cfg.reps_of(method)
+    scale = reps / cfg.reps
+    cases = method_cases(method, reps, sub[method], offset=offset)
+    return [dataclasses.replace(c, frac=c.frac * scale) for c in cases]
 
 
 def save_results(method: str, table: dict, run: dict, out: Path) -> None:
@@ -387,7 +404,7 @@ def write_report(
     figure = f"calibration_{method}.png"
     reliability_figure(method, table, (FIG if cfg.docs else cfg.out) / figure)
     save_results(method, table, run, cfg.out)
-    md = [*intro, "", *markdown(title, table, run, cfg.reps), "", *extra]
+    md = [*intro, "", *markdown(title, table, run, cfg.reps_of(method)), "", *extra]
     md += [f"![reliability]({'docs/figures/' if cfg.docs else ''}{figure})"]
     if cfg.docs:
         write_section(section, "\n".join(md))
@@ -439,7 +456,8 @@ def report_kernel(run: dict, cfg: Settings) -> None:
         "systems: the averaged Duffing oscillator (FRC exact in closed form), the Duffing "
         "ODE and Shaw–Pierre (ODEs; training FRCs and truth by continuation, fitted as "
         "`bifid fit forced --selection loo` fits them). "
-        f"{cfg.reps} replications per 1 % case of the averaged oscillator, {cfg.ode_reps} per "
+        f"{cfg.kernel_reps} replications per 1 % case of the averaged oscillator, "
+        f"{cfg.ode_reps} per "
         "case of the ODEs. The intervals' shape (a scaled Student t of the standardised "
         f"errors, c = {ERROR_SCALE}, ν = {ERROR_DOF} for the special points, c = {BAND_SCALE}, "
         f"ν = {BAND_DOF} for the amplitude along the FRC) was fitted on three sets of tuning "
@@ -509,7 +527,7 @@ def tune_hybrid(cfg: Settings, jobs: int, resume: bool) -> None:
 
     from bifid.identify.hopf_hybrid._uncertainty import SCALE
 
-    cases = method_cases("hybrid", cfg.reps, cfg.flutter_reps, offset=0)
+    cases = cases_of("hybrid", cfg, offset=0)
     group = Group("hybrid tuning", cases, cfg.out / "calibration_hybrid_tuning_rows.json")
     rows = run([group], cfg.reps, jobs, resume)[0][group.name]["rows"]
     for lv in LEVELS:
@@ -535,7 +553,7 @@ def tune_kernel(cfg: Settings, jobs: int, resume: bool) -> None:
     groups = [
         Group(
             f"kernel tuning {o}",
-            method_cases("kernel", cfg.reps, cfg.ode_reps, offset=o),
+            cases_of("kernel", cfg, offset=o),
             cfg.out / f"calibration_kernel_tuning_{o}_rows.json",
         )
         for o in KERNEL_TUNE_OFFSETS
@@ -559,6 +577,7 @@ def main() -> None:
     add("--out", type=Path, help="directory of the rows (default benchmarks/results/)")
     add("--flutter-reps", type=int, default=10, help="replications of each flutter case")
     add("--ode-reps", type=int, default=10, help="kernel: replications of each ODE case")
+    add("--kernel-reps", type=int, help="kernel: replications per 1 %% case (default --reps)")
     for flag, text in (
         ("--quick", "4 replications per 1 %% case, 2 per other case, out/calibration_quick/"),
         ("--resume", "read back the replications in the rows files, run only new seeds"),
@@ -569,18 +588,19 @@ def main() -> None:
         add(flag, action="store_true", help=text)
     args = ap.parse_args()
     if args.quick:
-        args.reps, args.ode_reps, args.flutter_reps = 4, 2, 2
+        args.reps, args.ode_reps, args.flutter_reps, args.kernel_reps = 4, 2, 2, None
     out = args.out or (ROOT / "out" / "calibration_quick" if args.quick else RESULTS)
     docs = not args.quick and out.resolve() == RESULTS.resolve()
-    cfg = Settings(args.reps, args.flutter_reps, args.ode_reps, out, docs)
+    cfg = Settings(
+        args.reps, args.flutter_reps, args.ode_reps, out, docs, args.kernel_reps or args.reps
+    )
     configure(args.xla_one_thread)
     if args.tune_kernel:
         return tune_kernel(cfg, args.jobs, args.resume)
     if args.tune_hybrid:
         return tune_hybrid(cfg, args.jobs, args.resume)
     methods = [m for m in REPORTS if args.method in ("all", m)]
-    sub = {"mechanistic": cfg.flutter_reps, "hybrid": cfg.flutter_reps, "kernel": cfg.ode_reps}
-    groups = [Group(m, method_cases(m, cfg.reps, sub[m]), out / ROWS_FILES[m]) for m in methods]
+    groups = [Group(m, cases_of(m, cfg), out / ROWS_FILES[m]) for m in methods]
     previous = out / "calibration.json"
     previous = json.loads(previous.read_text()) if args.resume and previous.exists() else {}
     runs, whole = run(groups, cfg.reps, args.jobs, args.resume, lambda m, r: REPORTS[m](r, cfg))
