@@ -65,10 +65,13 @@ def records(forcing: float, n: int = 16, curve_id: int = 0) -> list[ForcedRecord
     return out
 
 
-def scurve_records(omega: float, rho: np.ndarray, curve_id: int) -> list[ForcedRecord]:
-    """Exact S-curve points at fixed Ω (eq. 6.11 solved for Γ at each ρ)."""
+def scurve_records(
+    omega: float, rho: np.ndarray, curve_id: int, gamma_per_f: float = KAPPA
+) -> list[ForcedRecord]:
+    """Exact S-curve points at fixed Ω (eq. 6.11 solved for Γ at each ρ; ``F = Γ /
+    gamma_per_f``)."""
     b = W0 + K * rho**2
-    forcing = np.sqrt((C * rho) ** 2 + ((b - omega) * rho) ** 2) / KAPPA
+    forcing = np.sqrt((C * rho) ** 2 + ((b - omega) * rho) ** 2) / gamma_per_f
     psi = np.arctan2(C * rho, -(b - omega) * rho)
     out = []
     for f, r, p in zip(forcing, rho, psi, strict=True):
@@ -255,6 +258,54 @@ def test_fit_from_scurves_with_default_settings():
     np.testing.assert_allclose(folds, exact_folds(0.009), rtol=1e-5)
 
 
+def inverse_curve(forcing: float, psi: np.ndarray, omega_ref: float):
+    """Exact FRC (Ω, ρ) at phase ψ of the reduced model forced by ``Γ = κF Ω̄/Ω``: from
+    eq. 6.10, ``ρΩ = κFΩ̄ sin ψ / c =: q`` and ``Ω = ω₀ + kρ² + c cot ψ``, so Ω is the one
+    positive root of ``Ω³ − (ω₀ + c cot ψ)Ω² − kq² = 0`` (Newton from above)."""
+    q = KAPPA * forcing * omega_ref * np.sin(psi) / C
+    p = W0 + C / np.tan(psi)
+    om = p + K * q**2 / p**2 + 0.05
+    for _ in range(60):
+        om = om - (om**3 - p * om**2 - K * q**2) / (3 * om**2 - 2 * p * om)
+    return om, q / om
+
+
+def test_inverse_forcing_frequency_from_scurves(tmp_path):
+    """Data forced by ``Γ = κF Ω̄/Ω`` (Ω̄ the mean trained frequency): with
+    ``forcing_frequency="inverse"`` κ is identified and every F ↔ Γ conversion (FRC
+    continuation, S-curve, stability, intervals, save/load) reproduces the exact model."""
+    omegas = (0.99, 1.0, 1.004, 1.012)
+    w_ref = float(np.mean(omegas))
+    recs = []
+    for c, om in enumerate(omegas):
+        recs += scurve_records(om, np.linspace(0.2, 4.0, 8), c, KAPPA * w_ref / om)
+    m = ForcedKernelModel(forcing_frequency="inverse", n_restarts=0, observation=False)
+    m.fit(forced_dataset(recs, ["y"], observed="y", system="analytic", source="test"))
+    assert m.forcing_scale_ == pytest.approx(KAPPA, rel=1e-3)
+    f = 0.009
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore", UserWarning)  # extrapolation warning
+        br = m.predict_diagram(forcing=f, range=(0.97, 1.03), level=0.95).branches[0]
+    psi = br.solutions[:, 1]
+    om, rho = inverse_curve(f, psi, w_ref)
+    np.testing.assert_allclose(br.solutions[:, 0], rho, rtol=1e-4)  # Γ off by Ω̄/Ω: 1e-2
+    np.testing.assert_allclose(br.params, om, atol=1e-6)
+    g = KAPPA * f * w_ref / br.params  # Γ at each point's own Ω
+    r, cp, sp_ = br.solutions[:, 0], np.cos(psi), np.sin(psi)
+    det = C * g * sp_ / r - g * cp * (2 * K * r - g * cp / r**2)
+    clear = np.abs(det) > 0.02 * np.abs(det).max()
+    assert np.array_equal(br.stable[clear], det[clear] > 0)
+    assert band_coverage(br, om, rho, np.pi - psi)["coverage"] > 0.6
+    # S-curve at an untrained frequency: F = Γ(ρ) / (κ Ω̄/Ω)
+    sc = m.scurve(1.008, (0.0, 0.012))
+    rs = sc.data["observed_amplitude"]
+    g_s = np.sqrt((C * rs) ** 2 + (W0 + K * rs**2 - 1.008) ** 2 * rs**2)
+    np.testing.assert_allclose(sc.params, g_s / (KAPPA * w_ref / 1.008), rtol=1e-4)
+    loaded = load(m.save(tmp_path / "m"))
+    assert loaded.summary()["parameters"]["forcing_frequency"] == "inverse"
+    np.testing.assert_allclose(loaded.frc(f, (0.97, 1.03)).params, m.frc(f, (0.97, 1.03)).params)
+
+
 def test_band_widens_away_from_the_data(model):
     def predicted(**query):
         with warnings.catch_warnings():  # the extrapolation warning is tested elsewhere
@@ -344,6 +395,10 @@ def test_input_errors_and_unfitted():
             forcing=[1] * 4,
             amplitude=[1] * 4,
             phase=[np.nan, np.nan, 1, 1],
+        )
+    with pytest.raises(BifidInputError, match="forcing_frequency"):
+        ForcedKernelModel(forcing_frequency="cubic").fit(
+            omega=[1, 1.1, 1.2, 1.3], forcing=[1] * 4, amplitude=[1] * 4, phase=[1] * 4
         )
     with pytest.raises(BifidInputError, match="a_basis"):
         ForcedKernelModel(a_basis=((0, 0),)).fit(

@@ -288,6 +288,13 @@ def fit_forced_cmd(
         str,
         typer.Option("--a-target", help="Samples of a: eq6.19 (thesis) | phase (a = −Γ sin ψ)."),
     ] = "eq6.19",
+    forcing_frequency: Annotated[
+        str,
+        typer.Option(
+            "--forcing-frequency",
+            help="Γ = κF (constant, thesis) | κFΩ̄/Ω (inverse: for S-curve data).",
+        ),
+    ] = "constant",
     amplitude: Annotated[
         str,
         typer.Option(
@@ -321,6 +328,7 @@ def fit_forced_cmd(
             linear_frequency=linear_frequency,
             selection=selection,
             a_target=a_target,
+            forcing_frequency=forcing_frequency,
             amplitude_kind=amplitude,
             observation=not no_observation,
             n_restarts=restarts,

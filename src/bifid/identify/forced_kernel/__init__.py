@@ -46,6 +46,15 @@ given (``forcing_scale=1.0`` is the thesis's assumption Γ = F) or fitted
 Jacobian ``n log κ`` — jointly with ``b``'s hyperparameters, starting from a least-squares
 estimate under ``b = B(ρ)``. Several forcing frequencies are needed to identify κ.
 
+Frequency dependence of the forcing. For ``ẍ + … = F cos Ωt`` first-order averaging gives
+a forcing term ``F/(2Ω)``, not a constant times ``F``; over a wide frequency range (or when
+``a`` is learned from S-curves, where nothing else tells it how ``Γ`` varies with Ω) that
+matters. ``forcing_frequency="inverse"`` uses ``Γ = κF Ω̄/Ω`` with Ω̄ the mean trained
+frequency (κ keeps its meaning at Ω̄); the default ``"constant"`` is the thesis's
+``Γ = κF``. Every conversion between ``F`` and ``Γ`` goes through
+:meth:`._state.ReducedFit.gamma` (NumPy) or :func:`._reduced.frequency_factor` (inside the
+JAX solves, where Γ varies with Ω along an FRC).
+
 The pipeline, one module per step: :mod:`._data` (training points from datasets and
 arrays), :mod:`._fitting` (κ with ``b``, then ``a`` and ``φ``, on the Gaussian processes of
 :mod:`._gp` / :mod:`._gp_core`), :mod:`._reduced` (the learned dynamics as pure JAX

@@ -79,7 +79,7 @@ def frc_sample_curves(
 ) -> tuple[np.ndarray, np.ndarray]:
     """Every sampled reduced model's FRC ``(Ω, ρ)`` (S, n) at the phases of the mean
     ``branch``; NaN where the solve failed."""
-    gamma = rf.forcing_scale * float(branch.data["forcing"][0])
+    gamma = rf.forcing_scale * float(branch.data["forcing"][0])  # κF; Γ(Ω) in the solve
     rho, psi, om = branch.solutions[:, 0], branch.solutions[:, 1], branch.params
     u, res = frc_samples_at_psi(rf.model, samples, jnp.asarray(gamma), psi, rho, om)
     r_s, o_s, res = np.asarray(u[..., 0]), np.asarray(u[..., 1]), np.asarray(res)
@@ -101,7 +101,7 @@ def scurve_sample_forcing(rf: ReducedFit, branch: Branch, samples: ReducedSample
     rho = branch.solutions[:, 0]
     om = branch.data["omega"]
     a_s, b_s = (np.asarray(v) for v in ab_grid_samples(rf.model, samples, rho, om))
-    return np.sqrt(a_s**2 + (b_s - om) ** 2 * rho**2) / rf.forcing_scale
+    return np.sqrt(a_s**2 + (b_s - om) ** 2 * rho**2) / rf.gamma(1.0, om)
 
 
 def backbone_sample_omega(rf: ReducedFit, branch: Branch, samples: ReducedSamples) -> np.ndarray:

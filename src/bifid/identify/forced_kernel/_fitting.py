@@ -7,7 +7,8 @@ measured quantity ``e_j = −F_j cos ψ_j / ρ_j`` under ``b = Ω + κe ~ GP``, 
 of ``b`` plus the Jacobian ``n log κ``, jointly with ``b``'s hyperparameters, from a
 least-squares start under ``b = B(ρ)`` (:func:`fit_kappa`); with one frequency and a known
 small-amplitude frequency ω₀ it follows by least squares of ``Ω_j + κe_j = ω₀ + c₁ρ_j² +
-c₂ρ_j⁴``.
+c₂ρ_j⁴``. With ``forcing_frequency="inverse"`` every ``F_j`` here is ``F_j Ω̄/Ω_j``
+(:func:`._reduced.frequency_factor`).
 """
 
 from __future__ import annotations

@@ -32,6 +32,7 @@ def check_hyperparameters(model: Any) -> None:
             f"linear_frequency must be a positive number [rad/s] or None, got {w0!r}."
         )
     for name, allowed in (
+        ("forcing_frequency", ("constant", "inverse")),
         ("selection", ("ml", "loo")),
         ("a_target", ("eq6.19", "phase")),
         ("amplitude_kind", ("max", "harmonic")),

@@ -23,7 +23,12 @@ from bifid.identify.forced_kernel._fitting import (
 )
 from bifid.identify.forced_kernel._gp import GPRegressor, HyperBounds
 from bifid.identify.forced_kernel._hyper import check_hyperparameters
-from bifid.identify.forced_kernel._reduced import ReducedModel, ReducedSamples, ab_grid
+from bifid.identify.forced_kernel._reduced import (
+    ReducedModel,
+    ReducedSamples,
+    ab_grid,
+    frequency_factor,
+)
 from bifid.identify.forced_kernel._state import ReducedFit
 from bifid.identify.forced_kernel._uncertainty import add_intervals
 
@@ -41,6 +46,12 @@ class ForcedKernelModel(IdentifiedModel):
         maximises the marginal likelihood of ``b`` (:mod:`._fitting`; needs several Ω, or
         ``linear_frequency``); "auto" fits when the data hold several forcing frequencies
         or ``linear_frequency`` is given, else uses 1.0 and says so in ``notes_``.
+    forcing_frequency : {"constant", "inverse"}
+        How the forcing term varies with Ω: ``Γ = κF`` (the thesis) or ``Γ = κF Ω̄/Ω`` with
+        Ω̄ the mean trained frequency (the forcing of ``ẍ + … = F cos Ωt`` reaches the
+        averaged amplitude equation as ``F/(2Ω)``; κ is the scale at Ω̄). Every conversion
+        between ``F`` and ``Γ`` (training samples, κ, FRCs, S-curves, stability, bands)
+        uses it.
     linear_frequency : float, optional
         A known small-amplitude natural frequency ω₀ [rad/s] (hammer test, or the first
         point of a measured backbone); identifies κ from one forcing frequency.
@@ -86,6 +97,7 @@ class ForcedKernelModel(IdentifiedModel):
         self,
         *,
         forcing_scale: float | Literal["fit", "auto"] = "auto",
+        forcing_frequency: Literal["constant", "inverse"] = "constant",
         linear_frequency: float | None = None,
         selection: Literal["ml", "loo"] = "ml",
         a_target: Literal["eq6.19", "phase"] = "eq6.19",
@@ -102,6 +114,7 @@ class ForcedKernelModel(IdentifiedModel):
         seed: int = 0,
     ) -> None:
         self.forcing_scale = forcing_scale
+        self.forcing_frequency = forcing_frequency
         self.linear_frequency = linear_frequency
         self.selection = selection
         self.a_target = a_target
@@ -188,7 +201,9 @@ class ForcedKernelModel(IdentifiedModel):
         self.sources_ = td.sources
         omega_c = float(np.mean(om))
         x = np.stack([rho, om], axis=1)
-        e = -fo * np.cos(psi) / rho  # b = Ω + κ e   (eq. 6.15)
+        # Γ/κ: F times the frequency law of the forcing term (1 or Ω̄/Ω)
+        fo_eff = fo * frequency_factor(self.forcing_frequency, omega_c, om)
+        e = -fo_eff * np.cos(psi) / rho  # b = Ω + κ e   (eq. 6.15)
         gp_b = self._gp(self.b_basis)
         mode = self._forcing_scale_mode(om, notes)
         kappa, self.kappa_info_ = (
@@ -198,7 +213,7 @@ class ForcedKernelModel(IdentifiedModel):
         )
         # b's hyperparameters are (re)selected at the final κ with the usual restarts
         gp_b.fit(x, om + kappa * e - omega_c)
-        gamma = kappa * fo
+        gamma = kappa * fo_eff
         gp_a = self._gp(self.a_basis)
         b_fit = np.asarray(gp_b.predict(x)) + omega_c
         xa, ya, pseudo = a_samples(
@@ -227,6 +242,7 @@ class ForcedKernelModel(IdentifiedModel):
             rho_range=(float(rho.min()), float(rho.max())),
             omega_range=(float(om.min()), float(om.max())),
             forcing_range=(float(fo.min()), float(fo.max())),
+            forcing_frequency=self.forcing_frequency,
         )
         self.losses_ = training_losses(
             self.reduced_.model,
@@ -301,7 +317,7 @@ class ForcedKernelModel(IdentifiedModel):
             np.atleast_1d(np.asarray(v, dtype=float))
             for v in np.broadcast_arrays(rho, psi, omega, forcing)
         )
-        return self.reduced_.stable(r, p, o, f * self.forcing_scale_)[0]
+        return self.reduced_.stable(r, p, o, self.reduced_.gamma(f, o))[0]
 
     def sample_reduced(
         self, n_samples: int, *, seed: int = 0, n_features: int = 256
@@ -485,6 +501,7 @@ class ForcedKernelModel(IdentifiedModel):
         params: dict[str, Any] = {
             "forcing_scale": rf.forcing_scale,
             "forcing_scale_fit": dict(self.kappa_info_),
+            "forcing_frequency": rf.forcing_frequency,
             "a": rf.gp_a.hyperparameters_,
             "b": rf.gp_b.hyperparameters_,
             "omega_offset": rf.omega_c,
@@ -527,6 +544,7 @@ class ForcedKernelModel(IdentifiedModel):
                 "phi": None if rf.gp_phi is None else rf.gp_phi.get_params(),
             },
             "forcing_scale": rf.forcing_scale,
+            "forcing_frequency": rf.forcing_frequency,
             "omega_c": rf.omega_c,
             "rho_range": list(rf.rho_range),
             "omega_range": list(rf.omega_range),
@@ -552,6 +570,7 @@ class ForcedKernelModel(IdentifiedModel):
             rho_range=tuple(map(float, state["rho_range"])),
             omega_range=tuple(map(float, state["omega_range"])),
             forcing_range=tuple(map(float, state["forcing_range"])),
+            forcing_frequency=str(state.get("forcing_frequency", "constant")),
         )
         self.forcing_sign_ = int(state["forcing_sign"])
         self.kappa_info_ = dict(state["kappa_info"])

@@ -48,7 +48,7 @@ def fixed_points(
 
     Returns a list of ``{rho, psi, phase, stable}`` sorted by amplitude.
     """
-    gamma = float(forcing) * rf.forcing_scale
+    gamma = float(rf.gamma(forcing, omega))
     rmax = 3.0 * rf.rho_range[1] if rho_max is None else float(rho_max)
     rr = np.linspace(rmax / n_grid, rmax, n_grid)
     a, b = (np.asarray(v) for v in ab_grid(rf.model, rr, np.full(n_grid, float(omega))))
@@ -97,7 +97,7 @@ def forced_branch(
 ) -> Branch:
     """A :class:`Branch` of forced responses ``(ρ, ψ)`` at ``(Ω, F)`` with their stability;
     ``params`` are Ω (``param="Omega"``) or F (``"F"``)."""
-    gamma = rf.forcing_scale * np.asarray(forcing, dtype=float)
+    gamma = rf.gamma(forcing, omega)
     eig, stable = rf.stable(rho, psi, omega, gamma)
     return Branch(
         kind="forced",
@@ -120,7 +120,11 @@ def forced_branch(
         message=message,
         options=options,
         signals=("y",),
-        meta={"observed": "y", "forcing_scale": rf.forcing_scale},
+        meta={
+            "observed": "y",
+            "forcing_scale": rf.forcing_scale,
+            "forcing_frequency": rf.forcing_frequency,
+        },
     )
 
 
@@ -193,7 +197,8 @@ def frc(
     Parameters
     ----------
     forcing : float
-        ``F`` (the model uses Γ = κF).
+        ``F`` (the model uses Γ = κF, or κF Ω̄/Ω along the curve with
+        ``forcing_frequency="inverse"``).
     omega_range : (float, float), optional
         Frequency window (default: :func:`omega_window`).
     options : ContinuationOptions, optional
@@ -210,7 +215,6 @@ def frc(
     f = float(forcing)
     if not (math.isfinite(f) and f > 0):
         raise BifidInputError(f"forcing must be a positive number, got {forcing!r}.")
-    gamma = f * rf.forcing_scale
     lo, hi = omega_window(rf, omega_range)
     cap = 4.0 * rf.rho_range[1] if rho_cap is None else float(rho_cap)
     starts = fixed_points(rf, lo, f, rho_max=cap)
@@ -225,7 +229,7 @@ def frc(
         options
         or ContinuationOptions(ds=0.01, ds_min=1e-8, ds_max=0.04, max_steps=4000, newton_tol=1e-9)
     ).with_(p_min=lo - 1e-12, p_max=hi)
-    args = {"model": rf.model, "gamma": jnp.asarray(gamma)}
+    args = {"model": rf.model, "gamma": jnp.asarray(f * rf.forcing_scale)}  # κF
     res = palc(
         FRC_PROBLEM,
         jnp.asarray([starts[0]["rho"], starts[0]["psi"], lo]),
@@ -293,7 +297,8 @@ def scurve(
     n_points: int = 400,
     rho_cap: float | None = None,
 ) -> Branch:
-    """S-curve at frequency Ω: ``Γ(ρ) = sqrt(a² + (b−Ω)²ρ²)`` on a ρ grid (eq. 6.11).
+    """S-curve at frequency Ω: ``Γ(ρ) = sqrt(a² + (b−Ω)²ρ²)`` on a ρ grid (eq. 6.11), and
+    ``F = Γ / (Γ per unit F at Ω)``.
 
     The branch runs from small amplitude until ``F`` leaves ``forcing_range`` (default
     ``[0, 1.5 × largest trained F]``) or ρ reaches ``rho_cap``. Folds are where
@@ -310,7 +315,7 @@ def scurve(
     if not (math.isfinite(f_lo) and math.isfinite(f_hi) and 0 <= f_lo < f_hi):
         raise BifidInputError(f"forcing_range must be 0 <= low < high, got {forcing_range!r}.")
     cap = 4.0 * rf.rho_range[1] if rho_cap is None else float(rho_cap)
-    k = rf.forcing_scale
+    k = float(rf.gamma(1.0, om))  # Γ per unit F at this Ω
     rr = np.linspace(cap / (50 * n_points), cap, 20 * n_points)
     a, b = (np.asarray(v) for v in ab_grid(rf.model, rr, np.full(rr.shape, om)))
     fgrid = np.asarray(sgamma(a, b, rr, om)[0]) / k

@@ -51,6 +51,7 @@ __all__ = [
     "eigs_mean_g",
     "fold_radii",
     "frc_samples_at_psi",
+    "frequency_factor",
     "pad_call",
     "response_radii",
     "sgamma",
@@ -65,11 +66,24 @@ def wrap_lag(psi: np.ndarray) -> np.ndarray:
 
 
 class ReducedModel(eqx.Module):
-    """The learned ``a``, ``b`` (posterior means) and the offset added to ``b``."""
+    """The learned ``a``, ``b`` (posterior means), the offset added to ``b`` (also the
+    reference frequency Ω̄ of the forcing term) and how the forcing term varies with Ω
+    (:func:`frequency_factor`)."""
 
     a: GPState
     b: GPState
     omega_c: Array
+    forcing_frequency: str = eqx.field(static=True, default="constant")
+
+
+def frequency_factor(kind: str, omega_ref, omega):
+    r"""``Γ / (κF)`` at the forcing frequency Ω: 1 for ``kind="constant"`` (the thesis's
+    ``Γ = κF``), ``Ω̄/Ω`` for ``"inverse"`` (``Γ = κF Ω̄/Ω``: the forcing of
+    ``ẍ + … = F cos Ωt`` reaches the first-order averaged amplitude equation as
+    ``F/(2Ω)``, so ``κ`` is the forcing scale at ``Ω = Ω̄``). NumPy or JAX arrays."""
+    if kind == "inverse":
+        return omega_ref / omega
+    return 1.0
 
 
 class ReducedSamples(eqx.Module):
@@ -97,8 +111,11 @@ def _fixed_point_residual(ab, y: Array, gamma: Array) -> Array:
 
 
 def _frc_residual(y: Array, args: dict) -> Array:
+    """Eq. 6.10 at ``y = (ρ, ψ, Ω)``; ``args["gamma"]`` is ``κF`` (Γ varies with Ω as
+    :func:`frequency_factor` says)."""
     m = args["model"]
-    return _fixed_point_residual(lambda r, o: _ab_mean(m, r, o), y, args["gamma"])
+    gamma = args["gamma"] * frequency_factor(m.forcing_frequency, m.omega_c, y[2])
+    return _fixed_point_residual(lambda r, o: _ab_mean(m, r, o), y, gamma)
 
 
 FRC_PROBLEM = ZeroProblem(_frc_residual, param_index=2)
@@ -162,13 +179,15 @@ def _newton(fun, u0: Array, n_iter: int) -> tuple[Array, Array]:
 
 @jax.jit
 def _frc_samples_at_psi_jit(m, s, gamma, psi, rho0, omega0):
-    """Each sample's FRC point at each phase ψ_i: Newton in (ρ, Ω) from the mean point."""
+    """Each sample's FRC point at each phase ψ_i: Newton in (ρ, Ω) from the mean point
+    (``gamma`` is ``κF``; Γ varies with Ω as :func:`frequency_factor` says)."""
 
     def per_sample(si):
         def per_point(p, r0, o0):
             def fun(u):
+                g = gamma * frequency_factor(m.forcing_frequency, m.omega_c, u[1])
                 return _fixed_point_residual(
-                    lambda rr, oo: _ab_sample(m, si, rr, oo), jnp.stack([u[0], p, u[1]]), gamma
+                    lambda rr, oo: _ab_sample(m, si, rr, oo), jnp.stack([u[0], p, u[1]]), g
                 )
 
             return _newton(fun, jnp.stack([r0, o0]), 6)
@@ -303,7 +322,8 @@ def ab_grid_samples(m, s, rho, omega):
 
 
 def frc_samples_at_psi(m, s, gamma, psi, rho0, omega0):
-    """Every sample's FRC point ``(ρ, Ω)`` at the phases ``psi`` and its residual."""
+    """Every sample's FRC point ``(ρ, Ω)`` at the phases ``psi`` and its residual
+    (``gamma``: ``κF``)."""
     return pad_call(
         lambda p, r, o: _frc_samples_at_psi_jit(m, s, gamma, p, r, o), psi, rho0, omega0, axis_out=1
     )

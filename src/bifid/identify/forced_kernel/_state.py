@@ -11,7 +11,12 @@ import jax.numpy as jnp
 import numpy as np
 
 from bifid.identify.forced_kernel._gp import GPRegressor
-from bifid.identify.forced_kernel._reduced import ReducedModel, ReducedSamples, eigs_mean_g
+from bifid.identify.forced_kernel._reduced import (
+    ReducedModel,
+    ReducedSamples,
+    eigs_mean_g,
+    frequency_factor,
+)
 
 __all__ = ["ReducedFit"]
 
@@ -27,11 +32,14 @@ class ReducedFit:
     gp_phi : GPRegressor or None
         The observation ``y = φ(z)`` (None without time series).
     forcing_scale : float
-        ``κ`` in ``Γ = κF``.
+        ``κ`` in ``Γ = κF`` (at ``Ω = omega_c`` when ``forcing_frequency="inverse"``).
     omega_c : float
-        Offset of ``b``.
+        Offset of ``b``, the mean trained frequency; also the reference frequency Ω̄ of
+        the forcing term.
     rho_range, omega_range, forcing_range : (float, float)
         Trained amplitudes, frequencies and forcings.
+    forcing_frequency : {"constant", "inverse"}
+        ``Γ = κF`` or ``Γ = κF Ω̄/Ω`` (:func:`._reduced.frequency_factor`).
     """
 
     gp_a: GPRegressor
@@ -42,6 +50,7 @@ class ReducedFit:
     rho_range: tuple[float, float]
     omega_range: tuple[float, float]
     forcing_range: tuple[float, float]
+    forcing_frequency: str = "constant"
     _last: dict[Any, Any] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def cached(self, key: Any, compute: Callable[[], Any]) -> Any:
@@ -57,8 +66,17 @@ class ReducedFit:
     def model(self) -> ReducedModel:
         """The posterior means as a JAX pytree."""
         return ReducedModel(
-            a=self.gp_a.state_, b=self.gp_b.state_, omega_c=jnp.asarray(self.omega_c)
+            a=self.gp_a.state_,
+            b=self.gp_b.state_,
+            omega_c=jnp.asarray(self.omega_c),
+            forcing_frequency=self.forcing_frequency,
         )
+
+    def gamma(self, forcing, omega) -> np.ndarray:
+        """The forcing term ``Γ`` of eq. 6.10 at forcing ``F`` and frequency Ω (arrays
+        broadcast): ``κF`` times :func:`._reduced.frequency_factor`."""
+        f, om = np.broadcast_arrays(np.asarray(forcing, float), np.asarray(omega, float))
+        return self.forcing_scale * f * frequency_factor(self.forcing_frequency, self.omega_c, om)
 
     def samples(self, n_samples: int, seed: int, n_features: int = 256) -> ReducedSamples:
         """Posterior function samples of ``a`` and ``b`` (pathwise conditioning;

@@ -76,7 +76,8 @@ other seeds (``docs/uncertainty.md``). The quantities:
   there and is left out). Extrema are refined between the branch's points by the parabola
   through the extreme point and its neighbours.
 - **Peak**: the largest amplitude and its frequency (refined the same way).
-- **S-curve points and folds**: the forcing ``F = sqrt(a² + (b − Ω)² ρ²)/κ`` at the mean
+- **S-curve points and folds**: the forcing ``F = sqrt(a² + (b − Ω)² ρ²)/Γ₁`` (``Γ₁``: Γ per
+  unit F at Ω, :meth:`~._state.ReducedFit.gamma`) at the mean
   branch's ρ, and its extrema near the mean's folds.
 - **Backbone points** (eq. 6.21): the frequency at each amplitude.
 
