@@ -95,6 +95,14 @@ def _values_and_span(
     return vals, (vals[0], vals[-1])
 
 
+def _default_step(lo: float, hi: float, param_scale: float) -> float:
+    """The arclength step of a PP-CBC continuation over ``[lo, hi]`` by default: a fifth of
+    the range in the weighted norm (the parameter over ``param_scale``, the target relative
+    to the starting LCO), at most 0.5 — a narrow range (a short unstable branch between the
+    start and the cycle fold) gets points along it, not one step across it."""
+    return min(0.5, 0.2 * (hi - lo) / abs(float(param_scale))) if hi > lo else 0.5
+
+
 def ppcbc_campaign(
     system: System | str,
     *,
@@ -138,11 +146,8 @@ def ppcbc_campaign(
     amplitudes : sequence of float, optional
         The scan's grid of target amplitudes (default: the system's CBC defaults).
     ds, param_scale : float
-        Arclength step (weighted norm: the parameter over ``param_scale``, the target
-        relative to the starting LCO) and the parameter's scale in it; default ``ds``:
-        a fifth of the range (in that norm), at most 0.5, so that a narrow range
-        (a short unstable branch between the start and the cycle fold) gets points
-        along it, not one step across it.
+        Arclength step (weighted norm) and the parameter's scale in it; default ``ds``:
+        a fifth of the range in that norm, at most 0.5.
     noise, noise_fraction
         Measurement noise: absolute std (one number or per output), or a fraction of the
         system's reference amplitudes (the smallest limit cycle of the range). With noise
@@ -170,8 +175,7 @@ def ppcbc_campaign(
     s.param_vector(over)
     vals, span = _values_and_span(values, span, continuation)
     lo, hi = sorted(span)
-    if ds is None:
-        ds = min(0.5, 0.2 * (hi - lo) / abs(float(param_scale))) if hi > lo else 0.5
+    ds = _default_step(lo, hi, param_scale) if ds is None else ds
     dflt = defaults or defaults_for(
         s, over, param=param, param_range=(lo, hi), noise_reference=noise_fraction is not None
     )

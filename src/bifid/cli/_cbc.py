@@ -150,8 +150,7 @@ def cbc_cmd(
         ),
     ] = 0,
     ds: Annotated[
-        float | None,
-        Opt("--ds", help="Arclength step (PP-CBC: a fifth of the range, at most 0.5)."),
+        float | None, Opt("--ds", help="Arclength step (PP-CBC: range/5, ≤ 0.5).")
     ] = None,
     omega: Annotated[
         float | None, Opt("--omega", help="scurve: Ω; ppcbc: frequency guess.")
