@@ -472,20 +472,51 @@ def noisy_scurve_records(
     return recs
 
 
-def shaw_pierre_scurves(n_per_curve: int = 20, noise: float = 0.01) -> tuple[dict, dict]:
-    """The setting of `bifid demo forced`: S-curves at 7 frequencies, measurement noise,
-    model with default settings; FRCs at untrained forcing levels, backbone, API timings."""
-    import tempfile
+#: noise seeds of the comparison of the two forcing laws on noisy S-curves
+SC_SEEDS = (0, 1, 2, 3, 4)
+#: untrained forcing levels of the FRCs predicted from the S-curves
+SC_TEST_FORCINGS = (0.003, 0.006, 0.009, 0.012)
+SC_WINDOW = (0.95, 1.05)
 
-    window = (0.95, 1.05)
+
+def scurve_dataset(seed: int, n_per_curve: int = 20, noise: float = 0.01):
+    """Noisy S-curves of ``shaw_pierre`` at ``SC_OMEGAS`` (noise ``noise`` times the median
+    amplitude, drawn with ``seed``): ``(dataset, records, sigma)``."""
     sc = {om: truth_scurve("shaw_pierre", om, SC_FORCING) for om in SC_OMEGAS}
     sigma = noise * float(np.median(np.concatenate([d["amplitude"] for d in sc.values()])))
-    rng = np.random.default_rng(0)
+    rng = np.random.default_rng(seed)
     recs = []
     for c, om in enumerate(SC_OMEGAS):
         idx = arclength_pick(sc[om], n_per_curve, SC_FORCING, xkey="forcing")
         recs += noisy_scurve_records(sc[om], om, idx, c, sigma, rng)
     ds = forced_dataset(recs, ["x1"], observed="x1", system="shaw_pierre", source="bench")
+    return ds, recs, sigma
+
+
+def scurve_laws() -> list[dict]:
+    """Both forcing laws (``forcing_frequency="constant"``: Γ = κF; ``"inverse"``:
+    Γ = κFΩ̄/Ω) fitted to the noisy S-curves of each of ``SC_SEEDS``: the FRCs at
+    ``SC_TEST_FORCINGS`` with their 95 % bands against the truth."""
+    out = []
+    for seed in SC_SEEDS:
+        ds, _, _ = scurve_dataset(seed)
+        for law in ("constant", "inverse"):
+            model = ForcedKernelModel(forcing_frequency=law).fit(ds)
+            for f in SC_TEST_FORCINGS:
+                d = truth_frc("shaw_pierre", f, SC_WINDOW)
+                row, _ = frc_errors(model, d, f, SC_WINDOW, True)
+                out.append({"seed": seed, "law": law, "kappa": model.forcing_scale_, **row})
+    return out
+
+
+def shaw_pierre_scurves() -> tuple[dict, dict]:
+    """The setting of `bifid demo forced`: S-curves at 7 frequencies, measurement noise,
+    model with default settings; FRCs at untrained forcing levels, backbone, API timings;
+    and the two forcing laws over several noise seeds (:func:`scurve_laws`)."""
+    import tempfile
+
+    window = SC_WINDOW
+    ds, recs, sigma = scurve_dataset(0)
     timing = {}
     t0 = time.perf_counter()
     model = ForcedKernelModel().fit(ds)
@@ -495,7 +526,7 @@ def shaw_pierre_scurves(n_per_curve: int = 20, noise: float = 0.01) -> tuple[dic
     timing["fit"] = time.perf_counter() - t0
     rows = []
     branches = {}
-    for f in (0.003, 0.006, 0.009, 0.012):
+    for f in SC_TEST_FORCINGS:
         row, br = frc_errors(model, truth_frc("shaw_pierre", f, window), f, window, True)
         rows.append(row)
         branches[f] = br
@@ -536,6 +567,7 @@ def shaw_pierre_scurves(n_per_curve: int = 20, noise: float = 0.01) -> tuple[dic
         "timing": timing,
         "notes": list(model.notes_),
         "stability_agreement": model.losses_.get("stability_agreement"),
+        "laws": scurve_laws(),
     }
     return res, {"branches": branches, "recs": recs}
 
@@ -550,13 +582,16 @@ def duffing(quick: bool) -> tuple[dict, dict]:
     ds = forced_dataset(recs, ["q"], observed="q", system="duffing", source="bench")
     out: dict = {"frc": {}}
     variants = [("fit", "eq6.19"), ("fit", "phase"), (0.5, "eq6.19"), (1.0, "eq6.19")]
+    variants.append(("fit", "eq6.19", "inverse"))  # Γ = κFΩ̄/Ω: the S-curves' law, here
     branches = {}
-    for fs, at in variants:
-        m = ForcedKernelModel(forcing_scale=fs, a_target=at).fit(ds)
+    for fs, at, *law in variants:
+        law = law[0] if law else "constant"
+        m = ForcedKernelModel(forcing_scale=fs, a_target=at, forcing_frequency=law).fit(ds)
         row, br = frc_errors(m, tr[test_f], test_f, window, True)
         row["kappa"] = m.forcing_scale_
-        out["frc"][f"κ={fs}, a: {at}"] = row
-        branches[(fs, at)] = br
+        out["frc"][f"κ={fs}, a: {at}" + ("" if law == "constant" else f", Γ: {law}")] = row
+        if law == "constant":
+            branches[(fs, at)] = br
     model = ForcedKernelModel(forcing_scale="fit").fit(ds)
     r_hi = model.rho_range_[1]
     tb = truth_backbone("duffing", (0.02, 2 * r_hi))
@@ -967,6 +1002,40 @@ def figures(sp_figs: dict, du_figs: dict, em_figs: dict) -> list[str]:
 # ============================================================================ report
 
 
+def scurve_laws_lines(rows: list[dict]) -> list[str]:
+    """Markdown of :func:`scurve_laws`: per law and noise seed, κ, the band's coverage of
+    the true FRC at each untrained forcing and the largest peak error; the means."""
+    fs = " / ".join(f"{f:g}" for f in SC_TEST_FORCINGS)
+    L = [
+        "**The forcing law** (`ForcedKernelModel(forcing_frequency=...)`): the same S-curves "
+        f"with the noise drawn from seeds {', '.join(map(str, SC_SEEDS))}; `constant` is "
+        "Γ = κF (the default, the thesis), `inverse` Γ = κFΩ̄/Ω (Ω̄ the mean trained "
+        "frequency), how the forcing of `ẍ + … = F cos Ωt` reaches the averaged amplitude "
+        "equation.\n",
+        f"| law | seed | κ | 95 % coverage at F = {fs} | largest peak error |",
+        "|---|---|---|---|---|",
+    ]
+    for law in ("constant", "inverse"):
+        for seed in SC_SEEDS:
+            part = [r for r in rows if r["law"] == law and r["seed"] == seed]
+            cov = " / ".join(pct(r["coverage"], 0) for r in part)
+            worst = max((r["peak_err"] for r in part), key=abs)
+            L.append(f"| {law} | {seed} | {part[0]['kappa']:.4f} | {cov} | {pct(worst, 2)} |")
+    L.append("")
+    for law in ("constant", "inverse"):
+        part = [r for r in rows if r["law"] == law]
+        cov = np.array([r["coverage"] for r in part])
+        err = np.abs([r["peak_err"] for r in part])
+        width = np.median([r["band_width_peak"] for r in part])
+        L.append(
+            f"`{law}`: mean coverage {np.mean(cov):.3f} (lowest {np.min(cov):.2f}) over "
+            f"{len(part)} FRCs, mean |peak error| {pct(float(np.mean(err)), 2)} (largest "
+            f"{pct(float(np.max(err)), 2)}), median 95 % width at the peak {width:.3g}.  "
+        )
+    L.append("")
+    return L
+
+
 def report(
     sp: dict, du: dict, em: dict, figs: list[str], load: str, sps: dict | None = None
 ) -> str:
@@ -1068,6 +1137,7 @@ def report(
             f"{t['scurve_band_first']:.1f} s); save {t['save']:.2f} s; load "
             f"{t['load']:.2f} s.\n"
         )
+        L += scurve_laws_lines(sps["laws"])
     if du:
         L.append(
             "### duffing (ζ = 0.01, γ = 0.5): trained at F = 0.005, 0.01 (16 points each), "
