@@ -56,6 +56,7 @@ from bifid.cbc._stability import (
 from bifid.continuation import ContinuationOptions, continue_from_hopf, floquet_multipliers
 from bifid.continuation.truth import correct_orbit
 from bifid.errors import BifidInputError, ConvergenceError, ConvergenceWarning
+from bifid.signal import fourier_coefficients
 from bifid.systems import System
 
 __all__ = ["cycles_at", "derive", "linearisation", "model_cycles", "retry_controller"]
@@ -289,15 +290,18 @@ def _from_cycles(
 
     def amp(orbit: np.ndarray) -> float:
         """First-harmonic amplitude of ``x1``."""
-        return 2.0 * abs(np.fft.rfft(orbit[:, i1])[1]) / orbit.shape[0]
+        _, a, b = fourier_coefficients(orbit[:, i1])
+        return float(np.hypot(a[0], b[0]))
 
     amps = np.array([amp(c[1]) for c in cycles])
     # the cycles of the range itself, those at its ends included, where there are any
     # (the cycles beyond its ends, taken for a narrow range, can reach the Hopf point:
     # vanishing amplitudes would start the grid, and refer relative noise, at nothing)
-    real = [c for c in [*cycles, *ends] if amp(c[1]) > 0.01 * np.max(amps)]
-    inside = [c for c in real if lo <= c[0] <= hi] or real
-    lo_a = 0.5 * min(amp(c[1]) for c in inside)
+    every = list(zip(cycles, amps, strict=True))
+    every += [(c, amp(c[1])) for c in ends]
+    real = [(c, a) for c, a in every if a > 0.01 * np.max(amps)]
+    inside = [(c, a) for c, a in real if lo <= c[0] <= hi] or real
+    lo_a = 0.5 * min(a for _, a in inside)
     hi_a = 1.15 * float(np.max(amps))
     # coexisting cycles: the smallest distance between amplitudes at nearby parameters
     lams = np.array([c[0] for c in cycles])
@@ -311,10 +315,11 @@ def _from_cycles(
     n = 16
     if gaps:
         n = int(min(max(math.ceil((hi_a - lo_a) / (0.5 * min(gaps))) + 1, 8), 32))
-    reference = {}  # the smallest LCO of the range
+    reference = {}  # the smallest LCO of the range (max |x - x̄| on the mesh)
     for name in system.states:
         i = system.state_index(name)
-        reference[name] = min(float(np.max(np.abs(c[1][:, i] - c[1][:, i].mean()))) for c in inside)
+        centred = (c[1][:, i] - c[1][:, i].mean() for c, _ in inside)
+        reference[name] = min(float(np.max(np.abs(x))) for x in centred)
     periods = np.array([c[2] for c in cycles])
     return {
         "amplitude_range": (lo_a, hi_a),
